@@ -1,0 +1,289 @@
+// pointviz — ray traversal of the surfel hierarchy (paper sections 2.1–2.2.2).
+//
+// One traversal loop serves both queries: a closest-hit policy gathers the disks around the
+// nearest hit and interpolates them; an any-hit policy stops at the first disk (shadow rays).
+// Statistics are collected by a hook type, so the plain path carries no counters.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+
+#include "pointviz/tree.h"
+
+namespace pointviz {
+
+/// How the disks around a hit are combined (section 2.1).
+enum class Interpolation : uint8_t {
+    None = 0,    ///< the nearest disk alone (the baseline: disks stick out)
+    Paper = 1,   ///< weights |I - p_i|, as printed in the paper (Schaufler & Jensen's scheme)
+    Smooth = 2,  ///< weights (1 - (|I - p_i| / r_i)^2)^2: full at the centre, zero at the rim
+};
+
+/// Knobs of one traversal; the paper's variants are combinations of these.
+struct TraceOptions {
+    bool lod = true;          ///< stop at nodes smaller than lod_pixels footprints (needs ray.spread > 0)
+    float lod_pixels = 1.f;   ///< LoD threshold: sphere diameter in units of the ray footprint
+    bool cull = true;         ///< back-face culling with normal cones (closest-hit queries only)
+    uint32_t box_depth = 0;   ///< nodes shallower than this are bounded by boxes, the rest by spheres
+    Interpolation interp = Interpolation::Smooth;
+    float window = 1.f;       ///< depth window, in radii of the nearest disk, measured along its normal
+};
+
+/// What a closest-hit query returns.
+struct SurfaceHit {
+    float t = kInf;        ///< blended ray parameter; kInf on a miss
+    Vec3 n;                ///< blended unit normal (as stored: may face away from the ray)
+    Vec3 color;            ///< blended colour in [0, 1]
+    float radius = 0.f;    ///< blended disk radius (the local sampling scale)
+    int32_t index = -1;    ///< nearest surfel (tree order); -2 when it was a LoD node disk; -1 miss
+    uint32_t count = 0;    ///< how many disks were blended
+};
+
+/// Statistics hook that counts nothing (the fast path).
+struct NoStats {
+    void node(uint32_t) {}
+    void disk() {}
+};
+
+/// Statistics hook for the paper's Figure 6: nodes visited, disk tests, deepest level reached.
+struct CountStats {
+    uint64_t nodes = 0, disks = 0;
+    uint32_t max_depth = 0;
+    void node(uint32_t depth) {
+        ++nodes;
+        max_depth = std::max(max_depth, depth);
+    }
+    void disk() { ++disks; }
+};
+
+/// Rays whose cosine with the nearest disk is below this are treated as if it were this large
+/// when the depth window is turned into a ray interval: at grazing angles the window would
+/// otherwise stretch along the ray without bound and swallow surfaces behind.
+constexpr float kWindowMinCos = 0.2f;
+/// Most disks gathered around a hit; overlapping disks of a well-sampled surface number 3–6.
+constexpr int kGather = 8;
+/// Each LoD node is drawn as a disk of the node's sphere radius times this (QSplat's splat size).
+constexpr float kLodDiskScale = 1.f;
+/// Fixed traversal stack; the median-split tree is at most 32 levels deep.
+constexpr int kStackSize = 64;
+
+namespace detail {
+
+/// One disk the ray crossed, kept until the traversal ends.
+struct Candidate {
+    float t, u2, facing, r;
+    uint32_t ref;   ///< surfel index, or node index | kNodeFlag for a LoD disk
+};
+constexpr uint32_t kNodeFlag = 0x80000000u;
+
+/// Closest-hit policy: keeps the disks within the depth window of the nearest one.
+struct Gather {
+    Candidate c[kGather];
+    int n = 0;
+    float limit;         ///< current far bound of the search
+    float ray_tmax;
+    float window;
+
+    Gather(float tmax, float window_) : limit(tmax), ray_tmax(tmax), window(window_) {}
+    float tfar() const { return limit; }
+    /// Returns true to stop the traversal (never, for closest hit).
+    bool add(const Candidate &k) {
+        if (k.t > limit) return false;
+        int pos = n < kGather ? n : kGather - 1;
+        if (n == kGather && k.t >= c[kGather - 1].t) return false;
+        while (pos > 0 && c[pos - 1].t > k.t) {
+            c[pos] = c[pos - 1];
+            --pos;
+        }
+        c[pos] = k;
+        if (n < kGather) ++n;
+        const Candidate &best = c[0];
+        float cosv = std::max(std::fabs(best.facing), kWindowMinCos);
+        limit = std::min(ray_tmax, best.t + window * best.r / cosv);
+        while (n > 0 && c[n - 1].t > limit) --n;
+        return false;
+    }
+};
+
+/// Any-hit policy: the first disk in range ends the search.
+struct AnyHit {
+    float limit;
+    bool hit = false;
+    explicit AnyHit(float tmax) : limit(tmax) {}
+    float tfar() const { return limit; }
+    bool add(const Candidate &) {
+        hit = true;
+        return true;
+    }
+};
+
+struct StackEntry {
+    uint32_t node;
+    float t;           ///< entry parameter of its bound
+    uint16_t depth;
+    uint16_t cull;     ///< whether the subtree still needs cone tests
+};
+
+/// Tests the ray against node `i`'s bound, box or sphere by depth. Returns the entry t or kInf.
+inline float enter_node(const SurfelTree &tree, uint32_t i, uint32_t depth, const Ray &ray,
+                        Vec3 inv_d, float tfar, uint32_t box_depth) {
+    if (depth < box_depth && i < tree.boxes().size())
+        return enter_box(tree.boxes()[i], ray.o, inv_d, ray.tmin, tfar);
+    const Node &nd = tree.nodes()[i];
+    return enter_sphere(nd.c, nd.radius, ray.o, ray.d, ray.tmin, tfar);
+}
+
+}  // namespace detail
+
+/// The traversal loop shared by every query (paper Figure 3b).
+///
+/// `cull` asks for back-face culling: disks facing away from the ray are skipped, and so are
+/// subtrees whose normal cone faces away entirely; once a cone faces the ray entirely its
+/// subtree is not tested again.
+template <class Policy, class Stats>
+void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
+              Policy &policy, Stats &stats) {
+    using namespace detail;
+    const auto &nodes = tree.nodes();
+    const auto &surfels = tree.surfels();
+    const Vec3 inv_d{1.f / ray.d.x, 1.f / ray.d.y, 1.f / ray.d.z};
+    const bool lod = opt.lod && ray.spread > 0.f;
+    const uint32_t box_depth = opt.box_depth;
+
+    StackEntry stack[kStackSize];
+    int sp = 0;
+    float t_root = enter_node(tree, 0, 0, ray, inv_d, policy.tfar(), box_depth);
+    if (t_root == kInf) return;
+    stack[sp++] = {0u, t_root, 0, uint16_t(cull)};
+
+    while (sp > 0) {
+        StackEntry e = stack[--sp];
+        if (e.t > policy.tfar()) continue;
+        const Node &nd = nodes[e.node];
+        stats.node(e.depth);
+        bool sub_cull = e.cull != 0;
+        if (sub_cull) {
+            float c = dot(oct_decode(nd.normal), ray.d);
+            if (c > nd.cone) continue;       // every normal faces away
+            if (c < -nd.cone) sub_cull = false;  // every normal faces the ray
+        }
+        if (nd.is_leaf()) {
+            uint32_t b = nd.index, cnt = nd.count();
+            for (uint32_t k = b; k < b + cnt; ++k) {
+                const Surfel &s = surfels[k];
+                stats.disk();
+                float facing;
+                DiskHit h;
+                if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), facing, h)) continue;
+                if (sub_cull && facing > 0.f) continue;
+                if (policy.add({h.t, h.u2, facing, s.r, k})) return;
+            }
+            continue;
+        }
+        const uint32_t c0 = nd.index;
+        if (lod) {
+            float t2 = dot(nd.c - ray.o, ray.d);
+            if (t2 > 0.f && 2.f * nd.radius <= opt.lod_pixels * ray.footprint(t2)) {
+                // Small enough: intersect the children as disks and let the policy blend them.
+                for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
+                    const Node &cn = nodes[ch];
+                    stats.disk();
+                    Vec3 cnorm = oct_decode(cn.normal);
+                    if (sub_cull && dot(cnorm, ray.d) > cn.cone) continue;
+                    float r = cn.radius * kLodDiskScale;
+                    float facing;
+                    DiskHit h;
+                    if (!intersect_disk(ray, cn.c, cnorm, r, policy.tfar(), facing, h)) continue;
+                    if (sub_cull && facing > 0.f) continue;
+                    if (policy.add({h.t, h.u2, facing, r, ch | kNodeFlag})) return;
+                }
+                continue;
+            }
+        }
+        const uint16_t cd = uint16_t(e.depth + 1);
+        float ta = enter_node(tree, c0, cd, ray, inv_d, policy.tfar(), box_depth);
+        float tb = enter_node(tree, c0 + 1, cd, ray, inv_d, policy.tfar(), box_depth);
+        uint16_t cf = uint16_t(sub_cull);
+        if (ta <= tb) {
+            if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
+            if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
+        } else {
+            if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
+            stack[sp++] = {c0 + 1, tb, cd, cf};
+        }
+    }
+}
+
+/// Attributes of a gathered disk: surfel or LoD node.
+inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
+    if (ref & detail::kNodeFlag) {
+        const Node &nd = tree.nodes()[ref & ~detail::kNodeFlag];
+        n = oct_decode(nd.normal);
+        uint32_t c = nd.rgba();
+        color = {channel(c, 0), channel(c, 1), channel(c, 2)};
+    } else {
+        const Surfel &s = tree.surfels()[ref];
+        n = s.n;
+        color = {channel(s.rgba, 0), channel(s.rgba, 1), channel(s.rgba, 2)};
+    }
+}
+
+/// Closest hit with interpolation over the disks facing the same way as the nearest one,
+/// within the depth window (paper section 2.1).
+template <class Stats>
+bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                 SurfaceHit &out, Stats &stats) {
+    detail::Gather g(ray.tmax, opt.window);
+    traverse(tree, ray, opt, opt.cull, g, stats);
+    out = SurfaceHit{};
+    if (g.n == 0) return false;
+    const detail::Candidate &best = g.c[0];
+    const bool front = best.facing < 0.f;
+    float wsum = 0.f, tsum = 0.f, rsum = 0.f;
+    Vec3 nsum{0, 0, 0}, csum{0, 0, 0};
+    uint32_t used = 0;
+    const int m = opt.interp == Interpolation::None ? 1 : g.n;
+    for (int k = 0; k < m; ++k) {
+        const detail::Candidate &c = g.c[k];
+        if ((c.facing < 0.f) != front) continue;
+        float w;
+        switch (opt.interp) {
+            case Interpolation::Paper: w = std::sqrt(c.u2) * c.r; break;
+            case Interpolation::Smooth: w = (1.f - c.u2) * (1.f - c.u2); break;
+            default: w = 1.f; break;
+        }
+        // Keeps a disk hit exactly at its rim (or, for Paper, at its centre) from vanishing
+        // entirely when it is the only one.
+        w += 1e-6f;
+        Vec3 n, col;
+        candidate_attributes(tree, c.ref, n, col);
+        wsum += w;
+        tsum += w * c.t;
+        rsum += w * c.r;
+        nsum += n * w;
+        csum += col * w;
+        ++used;
+    }
+    out.t = tsum / wsum;
+    out.n = normalize(nsum);
+    if (!(length2(out.n) > 0.5f)) {  // blended normals cancelled out: keep the nearest
+        Vec3 unused;
+        candidate_attributes(tree, best.ref, out.n, unused);
+    }
+    out.color = csum / wsum;
+    out.radius = rsum / wsum;
+    out.index = (best.ref & detail::kNodeFlag) ? -2 : int32_t(best.ref);
+    out.count = used;
+    return true;
+}
+
+/// Any hit in [ray.tmin, ray.tmax]: shadow rays. Two-sided unless `cull` is asked for.
+template <class Stats>
+bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
+             Stats &stats) {
+    detail::AnyHit a(ray.tmax);
+    traverse(tree, ray, opt, cull, a, stats);
+    return a.hit;
+}
+
+}  // namespace pointviz

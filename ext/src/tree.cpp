@@ -1,0 +1,210 @@
+// pointviz — building the surfel hierarchy.
+#include "pointviz/tree.h"
+
+#include <algorithm>
+#include <chrono>
+#include <numeric>
+#include <stdexcept>
+
+#include "pointviz/parallel.h"
+
+namespace pointviz {
+namespace {
+
+/// Nodes with at most this many surfels get their sphere radius and normal cone from their own
+/// surfels (exact); larger nodes compose their children's bounds (conservative, O(1) each).
+/// Exact bounds matter most low in the tree, where spheres are used and rays spend their
+/// time; this keeps the build O(n log(kExactBoundSurfels / leaf)) for those passes.
+constexpr uint32_t kExactBoundSurfels = 1024;
+
+/// Largest cloud the 32-bit indices of the layout can address (with margin for flags).
+constexpr size_t kMaxSurfels = size_t(1) << 31;
+
+/// Half-open range of the index array that a node owns during the build.
+struct Range {
+    uint32_t b, e;
+    uint32_t size() const { return e - b; }
+};
+
+/// Per-node sums carried up the tree during the build.
+struct Sums {
+    Vec3 nsum;     ///< sum of normals
+    Vec3 csum;     ///< sum of colours
+    float theta;   ///< cone half-angle (radians)
+};
+
+}  // namespace
+
+SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const BuildOptions &opt) {
+    auto t0 = std::chrono::steady_clock::now();
+    const size_t n = in.n;
+    if (n == 0) throw std::invalid_argument("cannot build a tree of zero surfels");
+    if (n >= kMaxSurfels) throw std::length_error("too many surfels for one tree (limit 2^31)");
+    const uint32_t leaf = std::clamp<uint32_t>(opt.leaf_size, 1u, 255u);
+    const int threads = resolve_threads(opt.threads);
+    for (int k = 0; k < 3; ++k) origin_[k] = origin[k];
+
+    // Local float positions.
+    std::vector<Vec3> pos(n);
+    parallel_for(n, 1 << 16, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            const double *p = in.points + 3 * i;
+            pos[i] = {float(p[0] - origin[0]), float(p[1] - origin[1]), float(p[2] - origin[2])};
+        }
+    });
+
+    // Topology, one level at a time: median split of the longest axis of the centres' box.
+    // The median (not the spatial midpoint) bounds the depth by log2(n / leaf) + 1 whatever
+    // the distribution (duplicates, outliers), so traversal can use a fixed-size stack.
+    std::vector<uint32_t> idx(n);
+    std::iota(idx.begin(), idx.end(), 0u);
+    std::vector<Range> ranges{{0u, uint32_t(n)}};
+    std::vector<uint32_t> first_child{0u};
+    level_start_ = {0u};
+    size_t lb = 0, le = 1;
+    for (;;) {
+        std::vector<uint32_t> child_of(le - lb, 0u);
+        size_t next = le;
+        for (size_t i = lb; i < le; ++i)
+            if (ranges[i].size() > leaf) {
+                child_of[i - lb] = uint32_t(next);
+                next += 2;
+            }
+        if (next == le) break;
+        ranges.resize(next);
+        first_child.resize(next, 0u);
+        for (size_t i = lb; i < le; ++i) first_child[i] = child_of[i - lb];
+        parallel_for(le - lb, 1, threads, [&](size_t b, size_t e, int) {
+            for (size_t j = b; j < e; ++j) {
+                size_t i = lb + j;
+                Range r = ranges[i];
+                if (r.size() <= leaf) continue;
+                Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
+                for (uint32_t k = r.b; k < r.e; ++k) {
+                    lo = vmin(lo, pos[idx[k]]);
+                    hi = vmax(hi, pos[idx[k]]);
+                }
+                Vec3 ext = hi - lo;
+                int axis = ext.x >= ext.y ? (ext.x >= ext.z ? 0 : 2) : (ext.y >= ext.z ? 1 : 2);
+                uint32_t mid = r.b + r.size() / 2;
+                std::nth_element(idx.begin() + r.b, idx.begin() + mid, idx.begin() + r.e,
+                                 [&](uint32_t a, uint32_t c) { return pos[a][axis] < pos[c][axis]; });
+                uint32_t fc = first_child[i];
+                ranges[fc] = {r.b, mid};
+                ranges[fc + 1] = {mid, r.e};
+            }
+        });
+        level_start_.push_back(uint32_t(le));
+        lb = le;
+        le = next;
+    }
+    level_start_.push_back(uint32_t(le));
+    const size_t n_nodes = le;
+
+    // Surfels in leaf order.
+    surfels_.resize(n);
+    order_ = idx;
+    parallel_for(n, 1 << 16, threads, [&](size_t b, size_t e, int) {
+        for (size_t k = b; k < e; ++k) {
+            uint32_t i = idx[k];
+            const float *nn = in.normals + 3 * i;
+            Surfel &s = surfels_[k];
+            s.p = pos[i];
+            s.r = in.radii[i];
+            s.n = normalize(Vec3{nn[0], nn[1], nn[2]});
+            s.rgba = in.colors ? pack_rgb(in.colors[3 * i], in.colors[3 * i + 1], in.colors[3 * i + 2])
+                               : 0xffffffffu;
+        }
+    });
+    std::vector<Vec3>().swap(pos);
+
+    // Attributes, bottom-up.
+    nodes_.resize(n_nodes);
+    std::vector<Box> boxes(n_nodes);
+    std::vector<Sums> sums(n_nodes);
+    const uint32_t levels = uint32_t(level_start_.size() - 1);
+    for (uint32_t lvl = levels; lvl-- > 0;) {
+        size_t b0 = level_start_[lvl], e0 = level_start_[lvl + 1];
+        parallel_for(e0 - b0, 64, threads, [&](size_t b, size_t e, int) {
+            for (size_t j = b; j < e; ++j) {
+                size_t i = b0 + j;
+                Range r = ranges[i];
+                Node &nd = nodes_[i];
+                Sums &sm = sums[i];
+                const bool interior = r.size() > leaf;
+                Vec3 c{0, 0, 0};
+                if (!interior) {
+                    Box bx{{kInf, kInf, kInf}, {-kInf, -kInf, -kInf}};
+                    sm.nsum = sm.csum = {0, 0, 0};
+                    for (uint32_t k = r.b; k < r.e; ++k) {
+                        const Surfel &s = surfels_[k];
+                        c += s.p;
+                        sm.nsum += s.n;
+                        sm.csum += Vec3{channel(s.rgba, 0), channel(s.rgba, 1), channel(s.rgba, 2)};
+                        Vec3 ext{s.r, s.r, s.r};
+                        bx.lo = vmin(bx.lo, s.p - ext);
+                        bx.hi = vmax(bx.hi, s.p + ext);
+                    }
+                    c = c / float(r.size());
+                    boxes[i] = bx;
+                    nd.index = r.b;
+                    nd.rgb_count = r.size() << 24;
+                } else {
+                    uint32_t fc = first_child[i];
+                    float w0 = float(ranges[fc].size()), w1 = float(ranges[fc + 1].size());
+                    c = (nodes_[fc].c * w0 + nodes_[fc + 1].c * w1) / (w0 + w1);
+                    sm.nsum = sums[fc].nsum + sums[fc + 1].nsum;
+                    sm.csum = sums[fc].csum + sums[fc + 1].csum;
+                    boxes[i] = {vmin(boxes[fc].lo, boxes[fc + 1].lo), vmax(boxes[fc].hi, boxes[fc + 1].hi)};
+                    nd.index = fc;
+                    nd.rgb_count = 0;
+                }
+                nd.c = c;
+                float nlen = length(sm.nsum);
+                Vec3 axis = nlen > 0.f ? sm.nsum / nlen : Vec3{0, 0, 1};
+                // A mean normal this short means opposite normals cancel: no useful cone.
+                bool degenerate = nlen < 1e-3f * float(r.size());
+                float radius = 0.f, theta = 0.f;
+                if (r.size() <= kExactBoundSurfels || !interior) {
+                    float cosmin = 1.f;
+                    for (uint32_t k = r.b; k < r.e; ++k) {
+                        const Surfel &s = surfels_[k];
+                        radius = std::max(radius, length(s.p - c) + s.r);
+                        cosmin = std::min(cosmin, dot(s.n, axis));
+                    }
+                    theta = std::acos(std::clamp(cosmin, -1.f, 1.f));
+                } else {
+                    uint32_t fc = first_child[i];
+                    for (uint32_t ch = fc; ch < fc + 2; ++ch) {
+                        radius = std::max(radius, length(nodes_[ch].c - c) + nodes_[ch].radius);
+                        Vec3 ca = normalize(sums[ch].nsum);
+                        float ang = std::acos(std::clamp(dot(ca, axis), -1.f, 1.f));
+                        theta = std::max(theta, ang + sums[ch].theta);
+                    }
+                }
+                if (degenerate) theta = 3.1415927f;
+                sm.theta = theta;
+                // Rounding: radius from float math; grow by a relative ulp-scale margin.
+                nd.radius = radius * (1.f + 1e-6f) + 1e-7f;
+                nd.normal = oct_encode(axis);
+                nd.cone = theta >= 1.5707963f ? kConeNever : std::sin(theta) + kConeSlack;
+                Vec3 mc = sm.csum / float(r.size());
+                nd.rgb_count |= pack_rgb(mc.x, mc.y, mc.z) & 0xffffffu;
+            }
+        });
+    }
+
+    box_depth_ = std::min<uint32_t>(opt.box_depth, levels);
+    boxes.resize(level_start_[box_depth_]);
+    boxes.shrink_to_fit();
+    boxes_ = std::move(boxes);
+    build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+size_t SurfelTree::memory_bytes() const {
+    return surfels_.size() * sizeof(Surfel) + nodes_.size() * sizeof(Node) +
+           boxes_.size() * sizeof(Box) + order_.size() * sizeof(uint32_t) +
+           level_start_.size() * sizeof(uint32_t);
+}
+
+}  // namespace pointviz

@@ -1,0 +1,329 @@
+"""The surfel scene: a point cloud's hierarchy and the ray queries on it (``cast_rays``, ``occluded``).
+
+The traversal variants reproduce the comparison of Zakaria et al. (GRAPP 2006, section 3):
+
+========== ===== ====== ======================================
+variant    LoD   culling bounds
+========== ===== ====== ======================================
+kdtree     no    no      boxes at every level (a plain KD-tree)
+lod        yes   no      spheres at every level
+lod+cull   yes   yes     spheres at every level
+full       yes   yes     boxes near the top, spheres below
+========== ===== ====== ======================================
+
+Each knob can also be set on its own (``lod=``, ``cull=``, ``box_depth=``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from .errors import InputError
+
+#: The paper's traversal variants, as knob settings.
+VARIANTS = {
+    "kdtree": {"lod": False, "cull": False, "box_depth": "all"},
+    "lod": {"lod": True, "cull": False, "box_depth": 0},
+    "lod+cull": {"lod": True, "cull": True, "box_depth": 0},
+    "full": {"lod": True, "cull": True, "box_depth": "auto"},
+}
+
+INTERPOLATIONS = ("none", "paper", "smooth")
+
+#: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
+DEFAULT_INTERPOLATION = "smooth"
+
+#: Most surfels per leaf: 8 surfels (256 bytes, four cache lines) per leaf keeps the tree at about
+#: a third of a node per surfel (about 11 bytes per surfel) while a leaf is still cheap to test.
+DEFAULT_LEAF_SIZE = 8
+
+#: With box_depth="auto", boxes are kept for the top levels while their total stays within this
+#: many bytes per surfel: boxes are tighter than spheres but cost 24 bytes per node, and the top
+#: of the tree, which every ray visits, is where tightness pays (the paper's section 2.2.2).
+AUTO_BOX_BYTES_PER_SURFEL = 1.5
+
+_ALL_LEVELS = 255
+
+
+def _auto_box_depth(n_surfels: int, leaf_size: int) -> int:
+    budget_nodes = AUTO_BOX_BYTES_PER_SURFEL * n_surfels / 24.0
+    depth, nodes = 0, 1.0
+    while nodes <= budget_nodes and depth < 40:
+        depth += 1
+        nodes = 2.0**depth
+    return depth
+
+
+def as_rays(rays, name: str = "rays") -> np.ndarray:
+    """Validate rays and return them as a C-contiguous (n, 6) float64 array.
+
+    Parameters
+    ----------
+    rays : (n, 6) array_like of float
+        Origin xyz and direction xyz per row; directions need not be unit length.
+    """
+    try:
+        arr = np.asarray(rays)
+    except Exception as exc:  # noqa: BLE001 - anything numpy cannot read
+        raise InputError(f"{name}: cannot be read as an array ({exc})") from None
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"{name}: expected a float array, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 6:
+        raise InputError(f"{name}: expected shape (n, 6) (origin, direction), got {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    finite = np.isfinite(arr).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        raise InputError(f"{name}: {bad.size} rows contain NaN or inf (first at row {bad[0]})")
+    zero = ~(np.abs(arr[:, 3:]).max(axis=1) > 0)
+    if zero.any():
+        bad = np.flatnonzero(zero)
+        raise InputError(f"{name}: {bad.size} rays have a zero direction (first at row {bad[0]})")
+    return arr
+
+
+class SurfelScene:
+    """A point cloud's surfel hierarchy, ready for ray queries.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Anything with ``points`` (n, 3), ``normals`` (n, 3), ``radii`` (n,) and ``colors``
+        ((n, 3) or None).
+    variant : {"full", "lod+cull", "lod", "kdtree"}
+        The paper's traversal variant; the knobs below override it one by one.
+    interpolation : {"smooth", "paper", "none"}
+        How the disks around a hit are blended (see ``pointviz._core.Interpolation``).
+    lod, cull : bool, optional
+        Level of detail (needs a pixel footprint at query time) and normal-cone culling.
+    box_depth : int or "auto" or "all", optional
+        Tree levels above this use boxes, the rest spheres.
+    lod_pixels : float
+        LoD threshold: stop descending when a node's sphere projects below this many pixels.
+    window : float
+        Depth window of the interpolation, in radii of the nearest disk.
+    leaf_size : int
+        Most surfels per leaf (1..255).
+    threads : int, optional
+        Worker threads for the build and queries; default all cores. Results never depend on it.
+    origin : (3,) float, optional
+        Local frame origin; default the cloud's bounding-box centre (keeps float32 precise for
+        georeferenced clouds).
+    """
+
+    def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
+                 lod: bool | None = None, cull: bool | None = None, box_depth=None,
+                 lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
+                 threads: int | None = None, origin=None):
+        if variant not in VARIANTS:
+            raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
+        interpolation = DEFAULT_INTERPOLATION if interpolation is None else interpolation
+        if interpolation not in INTERPOLATIONS:
+            raise InputError(
+                f"interpolation: expected one of {INTERPOLATIONS}, got {interpolation!r}")
+        if not (np.isfinite(lod_pixels) and lod_pixels > 0):
+            raise InputError(f"lod_pixels: must be a positive number, got {lod_pixels!r}")
+        if not (np.isfinite(window) and window >= 0):
+            raise InputError(f"window: must be a non-negative number, got {window!r}")
+        if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 255):
+            raise InputError(f"leaf_size: must be an integer in 1..255, got {leaf_size!r}")
+        self.threads = _check_threads(threads)
+        self.cloud = cloud
+        self.variant = variant
+        self.interpolation = interpolation
+        knobs = dict(VARIANTS[variant])
+        if lod is not None:
+            knobs["lod"] = bool(lod)
+        if cull is not None:
+            knobs["cull"] = bool(cull)
+        if box_depth is not None:
+            knobs["box_depth"] = box_depth
+        points = np.ascontiguousarray(cloud.points, dtype=np.float64)
+        n = len(points)
+        if n == 0:
+            raise InputError("cloud: has no points")
+        bd = knobs["box_depth"]
+        if bd == "auto":
+            bd = _auto_box_depth(n, leaf_size)
+        elif bd == "all":
+            bd = _ALL_LEVELS
+        elif not (isinstance(bd, (int, np.integer)) and bd >= 0):
+            raise InputError(f"box_depth: expected an integer >= 0, 'auto' or 'all', got {bd!r}")
+        if origin is None:
+            origin = 0.5 * (points.min(axis=0) + points.max(axis=0))
+        origin = np.asarray(origin, dtype=np.float64).reshape(3)
+        colors = getattr(cloud, "colors", None)
+        self._tree = _core.SurfelTree(
+            points,
+            np.ascontiguousarray(cloud.normals, dtype=np.float32),
+            np.ascontiguousarray(cloud.radii, dtype=np.float32),
+            None if colors is None else np.ascontiguousarray(colors, dtype=np.float32),
+            tuple(float(v) for v in origin),
+            leaf_size=int(leaf_size),
+            box_depth=int(min(bd, _ALL_LEVELS)),
+            threads=self.threads or 0,
+        )
+        self._options = _core.TraceOptions()
+        self._options.lod = knobs["lod"]
+        self._options.cull = knobs["cull"]
+        self._options.box_depth = int(min(bd, _ALL_LEVELS))
+        self._options.lod_pixels = float(lod_pixels)
+        self._options.window = float(window)
+        self._options.interpolation = getattr(_core.Interpolation, interpolation)
+        self.last_stats: dict = {}
+
+    # -- properties -------------------------------------------------------------------------
+    @property
+    def lod(self) -> bool:
+        return self._options.lod
+
+    @property
+    def cull(self) -> bool:
+        return self._options.cull
+
+    @property
+    def box_depth(self) -> int:
+        return self._tree.box_depth
+
+    @property
+    def lod_pixels(self) -> float:
+        return self._options.lod_pixels
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the core: surfels, nodes, boxes and the index permutation."""
+        return int(self._tree.memory_bytes)
+
+    @property
+    def build_seconds(self) -> float:
+        return float(self._tree.build_seconds)
+
+    @property
+    def n_surfels(self) -> int:
+        return int(self._tree.n_surfels)
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self._tree.n_nodes)
+
+    @property
+    def nodes_per_surfel(self) -> float:
+        return self.n_nodes / self.n_surfels
+
+    @property
+    def depth(self) -> int:
+        return int(self._tree.depth)
+
+    @property
+    def origin(self) -> np.ndarray:
+        return np.array(self._tree.origin)
+
+    @property
+    def tree(self):
+        """The core tree object (``pointviz._core.SurfelTree``), for renderers and diagnostics."""
+        return self._tree
+
+    def trace_options(self, lod_pixels: float | None = None):
+        """A copy of the traversal options, optionally with another LoD threshold."""
+        o = _core.TraceOptions()
+        for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window"):
+            setattr(o, k, getattr(self._options, k))
+        if lod_pixels is not None:
+            if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
+                raise InputError(f"lod_pixels: must be a non-negative number, got {lod_pixels!r}")
+            o.lod = o.lod and lod_pixels > 0
+            o.lod_pixels = float(lod_pixels) if lod_pixels > 0 else 1.0
+        return o
+
+    def __repr__(self) -> str:
+        return (f"SurfelScene({self.n_surfels} surfels, variant={self.variant!r}, "
+                f"interpolation={self.interpolation!r}, depth={self.depth}, "
+                f"{self.memory_bytes / self.n_surfels:.1f} B/surfel)")
+
+    # -- queries ----------------------------------------------------------------------------
+    def cast_rays(self, rays, *, pixel_angle: float | None = None, camera=None,
+                  lod_pixels: float | None = None, stats: bool = True) -> dict:
+        """Closest hits with interpolated attributes.
+
+        Parameters
+        ----------
+        rays : (n, 6) float32 or float64
+            Origin and direction per row (world coordinates).
+        pixel_angle : float, optional
+            Angle of one pixel in radians: enables level of detail. Without it (and without a
+            camera) rays are traced at full detail.
+        camera : Camera, optional
+            Takes ``pixel_angle`` from the camera.
+        lod_pixels : float, optional
+            Overrides the scene's LoD threshold for this call; 0 disables LoD.
+
+        Returns
+        -------
+        dict
+            ``t_hit`` (n,) float32 (inf on a miss, in units of the given directions),
+            ``normals`` (n, 3) float32 unit, ``colors`` (n, 3) float32, ``radii`` (n,) float32
+            (blended disk radius), ``index`` (n,) int32 (input index of the nearest surfel,
+            -1 miss, -2 a LoD node), ``count`` (n,) uint8 (disks blended),
+            ``positions`` (n, 3) float64 (inf on a miss).
+        """
+        arr = as_rays(rays)
+        pa = _pixel_angle(pixel_angle, camera)
+        out, st = self._tree.cast(arr, self.trace_options(lod_pixels), pixel_angle=pa,
+                                  threads=self.threads or 0, stats=stats)
+        t = out["t_hit"].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            out["positions"] = arr[:, :3] + arr[:, 3:] * t[:, None]
+        out["positions"][~np.isfinite(t)] = np.inf
+        self.last_stats = dict(st)
+        return out
+
+    def occluded(self, rays, t_max, *, t_min: float = 0.0, pixel_angle: float | None = None,
+                 stats: bool = True) -> np.ndarray:
+        """Any-hit query for shadow rays: whether anything lies in ``(t_min, t_max)``.
+
+        Parameters
+        ----------
+        rays : (n, 6) float
+        t_max : float or (n,) float
+            Far end of each ray's interval, in units of the given directions.
+        t_min : float
+            Near end (skip the surface a shadow ray starts on).
+
+        Returns
+        -------
+        (n,) bool
+        """
+        arr = as_rays(rays)
+        tm = np.broadcast_to(np.asarray(t_max, dtype=np.float32), (len(arr),))
+        if np.isnan(tm).any():
+            raise InputError("t_max: contains NaN")
+        if not np.isfinite(t_min) or t_min < 0:
+            raise InputError(f"t_min: must be a finite number >= 0, got {t_min!r}")
+        pa = _pixel_angle(pixel_angle, None)
+        opts = self.trace_options()
+        if pa == 0.0:
+            opts.lod = False
+        hit, st = self._tree.occluded(arr, np.ascontiguousarray(tm), opts, t_min=float(t_min),
+                                      pixel_angle=pa, threads=self.threads or 0, stats=stats)
+        self.last_stats = dict(st)
+        return hit.astype(bool)
+
+
+def _pixel_angle(pixel_angle, camera) -> float:
+    if camera is not None:
+        pixel_angle = camera.pixel_angle
+    if pixel_angle is None:
+        return 0.0
+    pa = float(pixel_angle)
+    if not (np.isfinite(pa) and 0 <= pa < np.pi):
+        raise InputError(f"pixel_angle: must be in [0, pi) radians, got {pixel_angle!r}")
+    return pa
+
+
+def _check_threads(threads):
+    if threads is None:
+        return None
+    if not (isinstance(threads, (int, np.integer)) and threads >= 1):
+        raise InputError(f"threads: must be a positive integer or None, got {threads!r}")
+    return int(threads)
