@@ -375,8 +375,8 @@ class Open3DTriangles:
         self._scene = o3d.t.geometry.RaycastingScene(nthreads=self.threads)
         self._scene.add_triangles(v, f)
         # Open3D commits lazily on the first query; force it so the build is timed here.
-        self._scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32) + [0, 0, 0, 0, 0, 1]),
-                              nthreads=self.threads)
+        probe = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 1.0]], dtype=np.float32)
+        self._scene.cast_rays(o3d.core.Tensor(probe), nthreads=self.threads)
         self.build_seconds = time.perf_counter() - start
 
     def intersect(self, rays: np.ndarray) -> dict:

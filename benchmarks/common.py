@@ -35,9 +35,11 @@ NORMAL_NEIGHBOURS = 16
 
 # Camera convention shared with pointviz.Camera: vertical field of view, rows from the top-left.
 DEFAULT_FOV_DEGREES = 40.0
-# Extra room around the bounding sphere when framing the model, so silhouettes are fully visible
-# and a fraction of the rays miss (misses are part of a real image's cost).
+# Extra room around the projected bounding box when framing the model, so silhouettes are fully
+# visible and some rays miss (misses are part of a real image's cost).
 FRAME_MARGIN = 1.05
+# The fitted eye is at least this many half-depths of the box from its centre (outside the box).
+EYE_OUTSIDE_BOX = 1.5
 # Random (incoherent) rays start on a sphere of this many bounding radii around the centre.
 RANDOM_RAY_SPHERE = 2.0
 
@@ -400,7 +402,7 @@ def fit_camera(points: np.ndarray, width: int, height: int,
                fov_degrees: float = DEFAULT_FOV_DEGREES,
                view: tuple[float, float, float] = (0.0, 0.0, 1.0),
                up: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> Camera:
-    """A camera looking at the bounding-box centre from ``view`` that frames the bounding sphere.
+    """A camera looking at the bounding-box centre from ``view`` that frames the bounding box.
 
     Parameters
     ----------
@@ -418,14 +420,24 @@ def fit_camera(points: np.ndarray, width: int, height: int,
     """
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre = (lo + hi) / 2.0
-    radius = float(np.linalg.norm(hi - lo)) / 2.0
-    half = math.radians(fov_degrees) / 2.0
-    if width < height:  # the narrower field of view limits the framing
-        half = math.atan(math.tan(half) * width / height)
-    distance = FRAME_MARGIN * radius / math.sin(half)
     direction = np.asarray(view, dtype=np.float64)
     direction /= np.linalg.norm(direction)
-    return Camera(centre + distance * direction, centre, np.asarray(up, dtype=np.float64),
+    up_axis = np.asarray(up, dtype=np.float64)
+    right = np.cross(-direction, up_axis)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, -direction)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - centre
+    half_x = np.abs(corners @ right).max()
+    half_y = np.abs(corners @ true_up).max()
+    half_z = np.abs(corners @ direction).max()
+    tan_v = math.tan(math.radians(fov_degrees) / 2.0)
+    tan_h = tan_v * width / height
+    # The box's projected extent fits the image at the centre's depth, with a margin (a model
+    # rarely fills its box's corners, so this frames it like a user would); the eye stays outside
+    # the box.
+    distance = max(FRAME_MARGIN * max(half_y / tan_v, half_x / tan_h), EYE_OUTSIDE_BOX * half_z)
+    return Camera(centre + distance * direction, centre, up_axis,
                   fov_degrees, width, height)
 
 
