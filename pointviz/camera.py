@@ -1,0 +1,760 @@
+"""Pinhole camera shared by the Python side and the C++ renderer.
+
+The renderer generates primary rays with exactly the model implemented by :meth:`Camera.rays`:
+
+* ``forward = normalize(target - eye)``, ``right = normalize(cross(forward, up))``,
+  ``true_up = cross(right, forward)`` (an orthonormal, right-handed basis);
+* ``fov_deg`` is the **vertical** field of view, ``tan_half = tan(radians(fov_deg) / 2)`` and
+  ``aspect = width / height`` (square pixels);
+* pixel ``(row i, col j)`` with in-pixel offset ``(u, v)`` in ``[0, 1)`` (``0.5, 0.5`` is the
+  pixel centre) looks along ``normalize(forward + sx * right + sy * true_up)`` with
+  ``sx = (2 * (j + u) / width - 1) * tan_half * aspect`` and
+  ``sy = (1 - 2 * (i + v) / height) * tan_half``; all rays start at ``eye``.
+
+Rows go top to bottom, columns left to right; continuous pixel coordinates put the centre of
+pixel ``(i, j)`` at ``(col, row) = (j + 0.5, i + 0.5)``, so the image spans ``[0, width] x
+[0, height]``. :meth:`Camera.project` is the exact inverse of the ray model.
+
+Open3D (:meth:`Camera.to_open3d`) uses a world->camera extrinsic with the camera looking down
++Z, +X right and +Y down, and an intrinsic matrix whose pixel centres sit at *integer*
+coordinates; hence ``cx = width / 2 - 0.5`` and ``cy = height / 2 - 0.5`` there.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import numbers
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import FileFormatError, InputError, require
+
+#: Largest accepted image width or height, in pixels.
+MAX_IMAGE_SIZE = 16384
+#: Default up vector (+Y).
+DEFAULT_UP = (0.0, 1.0, 0.0)
+#: Default vertical field of view, degrees.
+DEFAULT_FOV_DEG = 40.0
+#: Default image size, pixels.
+DEFAULT_WIDTH = 640
+DEFAULT_HEIGHT = 480
+#: Default viewing direction of :meth:`Camera.fit` (from the eye toward the cloud): from the +Z
+#: side and slightly above for a +Y-up scene.
+DEFAULT_FIT_DIRECTION = (0.0, -0.3, -1.0)
+#: Default padding of :meth:`Camera.fit`: the bounding sphere's image radius is the half size of
+#: the smaller image side divided by this.
+DEFAULT_MARGIN = 1.05
+#: ``up`` is rejected when the sine of its angle to the view direction is below this.
+PARALLEL_SIN_TOL = 1e-6
+#: Radius used by :meth:`Camera.fit` for a cloud whose points all coincide (scene units).
+DEGENERATE_RADIUS = 1.0
+#: Default relative tolerance when checking that Open3D intrinsics fit the pinhole model.
+OPEN3D_RTOL = 1e-6
+#: Identifier written into camera JSON files.
+CAMERA_FORMAT = "pointviz.camera"
+CAMERA_FORMAT_VERSION = 1
+#: Rows of rays generated per block in :meth:`Camera.rays` (bounds float64 temporaries).
+RAY_BLOCK_ROWS = 256
+
+_FIELDS = ("eye", "target", "up", "fov_deg", "width", "height")
+
+
+# --------------------------------------------------------------------------- validation helpers
+
+
+def _vec3(value: Any, name: str) -> np.ndarray:
+    """Return ``value`` as a finite float64 array of shape (3,) or raise InputError naming it."""
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # ragged lists and the like
+        raise InputError(f"{name} must be 3 numbers, got {value!r}") from exc
+    if arr.dtype.kind not in "iuf" or arr.shape != (3,):
+        raise InputError(f"{name} must be 3 numbers, got {value!r}")
+    arr = arr.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name} contains NaN or inf: {value!r}")
+    return arr
+
+
+def _real(value: Any, name: str) -> float:
+    """Return ``value`` as a finite float or raise InputError naming it."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    out = float(value)
+    if not math.isfinite(out):
+        raise InputError(f"{name} must be finite, got {value!r}")
+    return out
+
+
+def _size(value: Any, name: str) -> int:
+    """Return a validated image size (positive int <= MAX_IMAGE_SIZE)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise InputError(f"{name} must be an integer, got {value!r}")
+    out = int(value)
+    if not 0 < out <= MAX_IMAGE_SIZE:
+        raise InputError(f"{name} must be in 1..{MAX_IMAGE_SIZE}, got {out}")
+    return out
+
+
+def _fov(value: Any, name: str = "fov_deg") -> float:
+    """Return a validated vertical field of view in degrees, in (0, 180) exclusive."""
+    out = _real(value, name)
+    if not 0.0 < out < 180.0:
+        raise InputError(f"{name} must be in (0, 180) degrees exclusive, got {out}")
+    return out
+
+
+def view_basis(
+    eye: np.ndarray, target: np.ndarray, up: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orthonormal camera basis of the ray model.
+
+    Parameters
+    ----------
+    eye, target, up : ndarray, shape (3,), float64
+        Validated (finite) vectors.
+
+    Returns
+    -------
+    forward, right, true_up : ndarray, shape (3,), float64
+        ``forward = normalize(target - eye)``, ``right = normalize(cross(forward, up))``,
+        ``true_up = cross(right, forward)``.
+
+    Raises
+    ------
+    InputError
+        If eye and target coincide, or ``up`` is zero or parallel to the view direction.
+    """
+    view = target - eye
+    dist = float(np.linalg.norm(view))
+    if dist == 0.0 or not math.isfinite(dist):
+        raise InputError("eye and target coincide")
+    forward = view / dist
+    up_norm = float(np.linalg.norm(up))
+    if up_norm == 0.0:
+        raise InputError("up must be a non-zero vector")
+    side = np.cross(forward, up / up_norm)
+    side_norm = float(np.linalg.norm(side))
+    if side_norm < PARALLEL_SIN_TOL:
+        raise InputError(f"up {tuple(float(x) for x in up)} is parallel to the view direction")
+    right = side / side_norm
+    true_up = np.cross(right, forward)
+    return forward, right, true_up
+
+
+def bounding_sphere(points: Any, name: str = "points") -> tuple[np.ndarray, float]:
+    """Bounding sphere of a point set: centre of the bounding box, radius to the farthest point.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Finite points, n >= 1.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    centre : ndarray, shape (3,), float64
+    radius : float
+        ``max |p - centre|``; 0 if all points coincide.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "iuf":
+        raise InputError(f"{name} must be an (n, 3) numeric array, got shape {pts.shape}")
+    if pts.shape[0] == 0:
+        raise InputError(f"{name} is empty")
+    pts = pts.astype(np.float64, copy=False)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise InputError(f"{name} contains NaN or inf")
+    centre = 0.5 * (lo + hi)
+    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", pts - centre, pts - centre))))
+    return centre, radius
+
+
+def fit_distance(
+    radius: float, fov_deg: float, width: int, height: int, margin: float = DEFAULT_MARGIN
+) -> float:
+    """Eye distance at which a sphere fills the smaller field of view with a margin.
+
+    The sphere's silhouette (a circle on the image, centred when the camera looks at the
+    sphere's centre) gets the radius ``min(width, height) / (2 * margin)`` pixels: its tangent
+    cone has half angle ``theta = atan(tan_half_min / margin)`` where ``tan_half_min`` is the
+    tangent of the smaller half field of view, so the distance is ``radius / sin(theta)``.
+
+    Parameters
+    ----------
+    radius : float
+        Sphere radius (> 0).
+    fov_deg : float
+        Vertical field of view, degrees.
+    width, height : int
+        Image size, pixels.
+    margin : float
+        Padding factor (> 0); 1 makes the sphere touch the image border.
+
+    Returns
+    -------
+    float
+        Distance from the eye to the sphere centre.
+    """
+    margin = _real(margin, "margin")
+    if margin <= 0.0:
+        raise InputError(f"margin must be > 0, got {margin}")
+    tan_half = math.tan(math.radians(_fov(fov_deg)) / 2.0)
+    aspect = _size(width, "width") / _size(height, "height")
+    tan_half_min = tan_half * min(1.0, aspect)
+    theta = math.atan(tan_half_min / margin)
+    return float(radius) / math.sin(theta)
+
+
+def _cloud_points_and_up(cloud: Any) -> tuple[np.ndarray, Any]:
+    """Points (n, 3) and optional ``up`` of a cloud object (or a bare (n, 3) array)."""
+    points = getattr(cloud, "points", cloud)
+    return np.asarray(points), getattr(cloud, "up", None)
+
+
+# --------------------------------------------------------------------------------- file helpers
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` atomically (temp file in the same folder, then rename).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination file.
+    text : str
+        UTF-8 content.
+    overwrite : bool
+        Replace an existing file. When False an existing file is never touched (the final step
+        is a hard link, which fails atomically if the path exists).
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is False; the message names the path.
+    """
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    refuse = f"refusing to overwrite existing file {str(path)!r} (pass overwrite=True)"
+    if not overwrite and path.exists():
+        raise FileExistsError(errno.EEXIST, refuse, str(path))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise FileExistsError(errno.EEXIST, refuse, str(path)) from None
+            except OSError:  # file systems without hard links: check-then-rename
+                if path.exists():
+                    raise FileExistsError(errno.EEXIST, refuse, str(path)) from None
+                os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def read_json_file(path: str | os.PathLike) -> Any:
+    """Parse a JSON file, raising FileFormatError naming the file when it is missing or invalid."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(f"{os.fspath(path)}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{os.fspath(path)}: cannot read: {exc}") from exc
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"{os.fspath(path)}: invalid JSON: {exc}") from exc
+
+
+def _json_dumps(data: Any) -> str:
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- Camera
+
+
+class Camera:
+    """Immutable pinhole camera (the renderer's ray model; see the module docstring).
+
+    Parameters
+    ----------
+    eye : array_like, shape (3,)
+        Centre of projection, world units.
+    target : array_like, shape (3,)
+        Point looked at; must differ from ``eye``.
+    up : array_like, shape (3,), optional
+        Up hint, not parallel to ``target - eye``; stored as given.
+    fov_deg : float, optional
+        Vertical field of view in degrees, in (0, 180) exclusive.
+    width, height : int, optional
+        Image size in pixels, 1..MAX_IMAGE_SIZE.
+
+    Raises
+    ------
+    InputError
+        For any invalid argument; the message names it.
+    """
+
+    __slots__ = ("_eye", "_target", "_up", "_fov_deg", "_width", "_height",
+                 "_forward", "_right", "_true_up")
+
+    def __init__(
+        self,
+        eye: Any,
+        target: Any,
+        up: Any = DEFAULT_UP,
+        fov_deg: float = DEFAULT_FOV_DEG,
+        width: int = DEFAULT_WIDTH,
+        height: int = DEFAULT_HEIGHT,
+    ) -> None:
+        self._eye = _vec3(eye, "eye")
+        self._target = _vec3(target, "target")
+        self._up = _vec3(up, "up")
+        self._fov_deg = _fov(fov_deg)
+        self._width = _size(width, "width")
+        self._height = _size(height, "height")
+        self._forward, self._right, self._true_up = view_basis(self._eye, self._target, self._up)
+        for arr in (self._eye, self._target, self._up, self._forward, self._right, self._true_up):
+            arr.setflags(write=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def look_at(
+        cls,
+        eye: Any,
+        target: Any,
+        up: Any = DEFAULT_UP,
+        fov_deg: float = DEFAULT_FOV_DEG,
+        width: int = DEFAULT_WIDTH,
+        height: int = DEFAULT_HEIGHT,
+    ) -> Camera:
+        """Camera at ``eye`` looking at ``target`` (same as the constructor)."""
+        return cls(eye, target, up, fov_deg, width, height)
+
+    @classmethod
+    def fit(
+        cls,
+        cloud: Any,
+        direction: Any = DEFAULT_FIT_DIRECTION,
+        fov_deg: float = DEFAULT_FOV_DEG,
+        width: int = DEFAULT_WIDTH,
+        height: int = DEFAULT_HEIGHT,
+        up: Any = None,
+        margin: float = DEFAULT_MARGIN,
+    ) -> Camera:
+        """Camera that frames a whole cloud.
+
+        The bounding sphere of the points (see :func:`bounding_sphere`) is looked at along
+        ``direction`` from the distance given by :func:`fit_distance`: its silhouette is a
+        centred circle of radius ``min(width, height) / (2 * margin)`` pixels, so every point
+        projects inside the image when ``margin >= 1``.
+
+        Parameters
+        ----------
+        cloud : object with ``points`` (n, 3) and optional ``up`` (3,), or an (n, 3) array
+            The points to frame (n >= 1).
+        direction : array_like, shape (3,)
+            Viewing direction, from the eye toward the cloud (need not be unit length).
+        fov_deg, width, height
+            As for the constructor.
+        up : array_like, shape (3,), optional
+            Up hint; None uses ``cloud.up`` when set, else +Y.
+        margin : float
+            Padding factor (> 0).
+
+        Returns
+        -------
+        Camera
+            ``target`` is the sphere centre. A cloud whose points all coincide is framed as a
+            sphere of radius DEGENERATE_RADIUS.
+        """
+        points, cloud_up = _cloud_points_and_up(cloud)
+        centre, radius = bounding_sphere(points, "cloud.points")
+        if radius == 0.0:
+            radius = DEGENERATE_RADIUS
+        direction = _vec3(direction, "direction")
+        norm = float(np.linalg.norm(direction))
+        if norm == 0.0:
+            raise InputError("direction must be a non-zero vector")
+        if up is None:
+            up = cloud_up if cloud_up is not None else DEFAULT_UP
+            up_name = "cloud.up" if cloud_up is not None else "up"
+        else:
+            up_name = "up"
+        up = _vec3(up, up_name)
+        distance = fit_distance(radius, fov_deg, width, height, margin)
+        eye = centre - distance * direction / norm
+        return cls(eye, centre, up, fov_deg, width, height)
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Camera:
+        """Camera from a mapping like :meth:`to_dict` (extra keys are ignored).
+
+        Raises
+        ------
+        InputError
+            If ``data`` is not a mapping, a key is missing or a value has the wrong type or is
+            invalid; the message names the key.
+        """
+        if not isinstance(data, dict):
+            raise InputError(f"camera must be a JSON object, got {type(data).__name__}")
+        missing = [key for key in _FIELDS if key not in data]
+        if missing:
+            raise InputError(f"missing key {missing[0]!r}")
+        return cls(
+            _vec3(data["eye"], "eye"),
+            _vec3(data["target"], "target"),
+            _vec3(data["up"], "up"),
+            _fov(data["fov_deg"]),
+            _size(data["width"], "width"),
+            _size(data["height"], "height"),
+        )
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> Camera:
+        """Read a camera written by :meth:`to_json`.
+
+        Raises
+        ------
+        FileFormatError
+            Naming the file (and the field) for a missing file, invalid JSON, a wrong
+            ``format``, a missing key, a wrong type or an invalid value (NaN, ...).
+        """
+        data = read_json_file(path)
+        where = os.fspath(path)
+        if isinstance(data, dict):
+            fmt = data.get("format", CAMERA_FORMAT)
+            if fmt != CAMERA_FORMAT:
+                raise FileFormatError(f"{where}: format is {fmt!r}, expected {CAMERA_FORMAT!r}")
+            version = data.get("version", CAMERA_FORMAT_VERSION)
+            if version != CAMERA_FORMAT_VERSION:
+                raise FileFormatError(f"{where}: unsupported version {version!r}")
+        try:
+            return cls.from_dict(data)
+        except InputError as exc:
+            raise FileFormatError(f"{where}: {exc}") from exc
+
+    @classmethod
+    def from_open3d(cls, params: Any, target_distance: float = 1.0) -> Camera:
+        """Camera from ``open3d.camera.PinholeCameraParameters`` (inverse of :meth:`to_open3d`).
+
+        Parameters
+        ----------
+        params : open3d.camera.PinholeCameraParameters
+            Intrinsic must have ``fx == fy`` and the principal point at the image centre
+            (``cx = width / 2 - 0.5``, ``cy = height / 2 - 0.5``), relative tolerance
+            OPEN3D_RTOL; the extrinsic's rotation must be proper (orthonormal, det +1).
+        target_distance : float
+            Open3D does not store a target: it is put this far along the view direction.
+
+        Returns
+        -------
+        Camera
+            ``up`` is the camera's true up (Open3D's -Y axis).
+        """
+        intr = params.intrinsic
+        width, height = int(intr.width), int(intr.height)
+        k = np.asarray(intr.intrinsic_matrix, dtype=np.float64)
+        ext = np.asarray(params.extrinsic, dtype=np.float64)
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        _size(width, "intrinsic.width")
+        _size(height, "intrinsic.height")
+        if not (np.all(np.isfinite(k)) and np.all(np.isfinite(ext))):
+            raise InputError("open3d params contain NaN or inf")
+        scale = max(width, height)
+        if not math.isclose(fx, fy, rel_tol=OPEN3D_RTOL) or fy <= 0:
+            raise InputError(f"intrinsic must have fx == fy > 0 (square pixels), got {fx}, {fy}")
+        if (abs(cx - (width / 2 - 0.5)) > OPEN3D_RTOL * scale
+                or abs(cy - (height / 2 - 0.5)) > OPEN3D_RTOL * scale):
+            raise InputError(
+                f"intrinsic principal point ({cx}, {cy}) is not the image centre "
+                f"({width / 2 - 0.5}, {height / 2 - 0.5})"
+            )
+        rot, trans = ext[:3, :3], ext[:3, 3]
+        if (not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6)
+                or np.linalg.det(rot) <= 0 or not np.allclose(ext[3], [0, 0, 0, 1])):
+            raise InputError("extrinsic is not a rigid transform (rotation must be proper)")
+        distance = _real(target_distance, "target_distance")
+        if distance <= 0:
+            raise InputError(f"target_distance must be > 0, got {distance}")
+        eye = -rot.T @ trans
+        forward, down = rot[2], rot[1]
+        fov_deg = math.degrees(2.0 * math.atan(height / (2.0 * fy)))
+        return cls(eye, eye + distance * forward, -down, fov_deg, width, height)
+
+    # ------------------------------------------------------------------ attributes
+    @property
+    def eye(self) -> np.ndarray:
+        """ndarray, shape (3,), float64 (read-only)."""
+        return self._eye
+
+    @property
+    def target(self) -> np.ndarray:
+        """ndarray, shape (3,), float64 (read-only)."""
+        return self._target
+
+    @property
+    def up(self) -> np.ndarray:
+        """Up hint as given; ndarray, shape (3,), float64 (read-only)."""
+        return self._up
+
+    @property
+    def fov_deg(self) -> float:
+        """Vertical field of view, degrees."""
+        return self._fov_deg
+
+    @property
+    def width(self) -> int:
+        return self._width
+
+    @property
+    def height(self) -> int:
+        return self._height
+
+    @property
+    def forward(self) -> np.ndarray:
+        """Unit view direction ``normalize(target - eye)``; shape (3,), float64."""
+        return self._forward
+
+    @property
+    def right(self) -> np.ndarray:
+        """Unit ``normalize(cross(forward, up))``; shape (3,), float64."""
+        return self._right
+
+    @property
+    def true_up(self) -> np.ndarray:
+        """Unit ``cross(right, forward)``; shape (3,), float64."""
+        return self._true_up
+
+    @property
+    def aspect(self) -> float:
+        """``width / height``."""
+        return self._width / self._height
+
+    @property
+    def tan_half(self) -> float:
+        """``tan(radians(fov_deg) / 2)``."""
+        return math.tan(math.radians(self._fov_deg) / 2.0)
+
+    @property
+    def pixel_angle(self) -> float:
+        """Angle in radians subtended by one pixel at the image centre."""
+        return 2.0 * math.atan(self.tan_half / self._height)
+
+    @property
+    def distance(self) -> float:
+        """``|target - eye|``."""
+        return float(np.linalg.norm(self._target - self._eye))
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels, ``height / (2 * tan_half)`` (same horizontally)."""
+        return self._height / (2.0 * self.tan_half)
+
+    # ------------------------------------------------------------------ rays and projection
+    def _offsets(self, samples: Any) -> tuple[Any, Any]:
+        """In-pixel offsets (u, v) broadcastable to (height, width)."""
+        if samples is None:
+            return 0.5, 0.5
+        s = np.asarray(samples, dtype=np.float64)
+        h, w = self._height, self._width
+        if s.shape == (2,):
+            u, v = s[0], s[1]
+        elif s.shape == (h, w, 2):
+            u, v = s[..., 0], s[..., 1]
+        elif s.shape == (h * w, 2):
+            u, v = s[:, 0].reshape(h, w), s[:, 1].reshape(h, w)
+        else:
+            raise InputError(
+                f"samples must have shape (2,), ({h}, {w}, 2) or ({h * w}, 2), got {s.shape}"
+            )
+        if not (np.all(np.isfinite(s)) and np.all(s >= 0.0) and np.all(s < 1.0)):
+            raise InputError("samples must be finite offsets in [0, 1)")
+        return u, v
+
+    def rays(self, samples: Any = None, dtype: Any = np.float32) -> np.ndarray:
+        """Primary rays, row by row from the top-left pixel.
+
+        Parameters
+        ----------
+        samples : array_like, optional
+            In-pixel offsets ``(u, v)`` in [0, 1): shape (2,) for every pixel, or
+            (height, width, 2) / (height * width, 2) per pixel. None means the pixel centres.
+        dtype : numpy dtype
+            float32 (default, what the renderer consumes) or float64 (keeps precision far from
+            the origin). Directions are computed in float64 and normalised before the cast.
+
+        Returns
+        -------
+        ndarray, shape (height * width, 6), ``dtype``
+            Origin xyz (the eye) then unit direction xyz; row ``i * width + j`` is pixel
+            ``(i, j)``.
+        """
+        dtype = np.dtype(dtype)
+        if dtype not in (np.float32, np.float64):
+            raise InputError(f"dtype must be float32 or float64, got {dtype}")
+        h, w = self._height, self._width
+        u, v = self._offsets(samples)
+        u = np.broadcast_to(u, (h, w))
+        v = np.broadcast_to(v, (h, w))
+        tan_half = self.tan_half
+        cols = np.arange(w, dtype=np.float64)
+        out = np.empty((h * w, 6), dtype=dtype)
+        out[:, :3] = self._eye
+        for r0 in range(0, h, RAY_BLOCK_ROWS):
+            r1 = min(h, r0 + RAY_BLOCK_ROWS)
+            rows = np.arange(r0, r1, dtype=np.float64)[:, None]
+            sx = (2.0 * (cols + u[r0:r1]) / w - 1.0) * tan_half * self.aspect
+            sy = (1.0 - 2.0 * (rows + v[r0:r1]) / h) * tan_half
+            d = (self._forward + sx[..., None] * self._right + sy[..., None] * self._true_up)
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            out[r0 * w:r1 * w, 3:] = d.reshape(-1, 3)
+        return out
+
+    def project(self, points: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Project world points to continuous pixel coordinates (inverse of :meth:`rays`).
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+            World points.
+
+        Returns
+        -------
+        pixels : ndarray, shape (n, 2), float64
+            ``(col, row)``; the centre of pixel ``(i, j)`` is ``(j + 0.5, i + 0.5)`` and the
+            image covers ``[0, width] x [0, height]``. NaN for points with depth <= 0.
+        depth : ndarray, shape (n,), float64
+            Distance along ``forward`` (not along the ray).
+        """
+        pts = np.asarray(points)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "iuf":
+            raise InputError(f"points must be an (n, 3) numeric array, got shape {pts.shape}")
+        rel = pts.astype(np.float64) - self._eye
+        depth = rel @ self._forward
+        x = rel @ self._right
+        y = rel @ self._true_up
+        focal = self.focal_px
+        with np.errstate(divide="ignore", invalid="ignore"):
+            col = self._width / 2.0 + focal * x / depth
+            row = self._height / 2.0 - focal * y / depth
+        pixels = np.stack([col, row], axis=1)
+        pixels[~(depth > 0)] = np.nan
+        return pixels, depth
+
+    # ------------------------------------------------------------------ conversions
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready mapping with keys eye, target, up (lists of 3 floats), fov_deg, width,
+        height."""
+        return {
+            "eye": [float(x) for x in self._eye],
+            "target": [float(x) for x in self._target],
+            "up": [float(x) for x in self._up],
+            "fov_deg": self._fov_deg,
+            "width": self._width,
+            "height": self._height,
+        }
+
+    def to_json(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
+        """Write ``{"format": "pointviz.camera", "version": 1, **to_dict()}`` atomically.
+
+        Raises
+        ------
+        FileExistsError
+            If ``path`` exists and ``overwrite`` is False.
+        """
+        data = {"format": CAMERA_FORMAT, "version": CAMERA_FORMAT_VERSION, **self.to_dict()}
+        return atomic_write_text(path, _json_dumps(data), overwrite=overwrite)
+
+    def intrinsic_matrix(self) -> np.ndarray:
+        """Open3D-convention K, shape (3, 3), float64 (pixel centres at integer coordinates)."""
+        f = self.focal_px
+        return np.array([[f, 0.0, self._width / 2.0 - 0.5],
+                         [0.0, f, self._height / 2.0 - 0.5],
+                         [0.0, 0.0, 1.0]])
+
+    def extrinsic_matrix(self) -> np.ndarray:
+        """World->camera 4x4 (float64) with the camera looking down +Z, +X right, +Y down."""
+        rot = np.stack([self._right, -self._true_up, self._forward])
+        ext = np.eye(4)
+        ext[:3, :3] = rot
+        ext[:3, 3] = -rot @ self._eye
+        return ext
+
+    def to_open3d(self) -> Any:
+        """``open3d.camera.PinholeCameraParameters`` that project points to the same pixels.
+
+        A point at our continuous pixel ``(col, row)`` lands at ``(col - 0.5, row - 0.5)`` in
+        Open3D's convention (pixel centres at integers), i.e. on the same pixel.
+        """
+        o3d = require("open3d", "viewer")
+        params = o3d.camera.PinholeCameraParameters()
+        k = self.intrinsic_matrix()
+        params.intrinsic = o3d.camera.PinholeCameraIntrinsic(
+            self._width, self._height, k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        )
+        params.extrinsic = self.extrinsic_matrix()
+        return params
+
+    # ------------------------------------------------------------------ copies, equality
+    def replace(self, **changes: Any) -> Camera:
+        """Copy with some of eye, target, up, fov_deg, width, height replaced."""
+        unknown = set(changes) - set(_FIELDS)
+        if unknown:
+            raise TypeError(f"Camera.replace() got unexpected field(s) {sorted(unknown)}")
+        fields = {name: getattr(self, name) for name in _FIELDS}
+        fields.update(changes)
+        return Camera(**fields)
+
+    def with_size(self, width: int, height: int) -> Camera:
+        """Copy with another image size (the vertical field of view is kept)."""
+        return self.replace(width=width, height=height)
+
+    def _key(self) -> tuple:
+        return (tuple(self._eye.tolist()), tuple(self._target.tolist()),
+                tuple(self._up.tolist()), self._fov_deg, self._width, self._height)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+    def isclose(self, other: Camera, atol: float = 1e-9) -> bool:
+        """True if all fields agree within ``atol`` (sizes exactly)."""
+        return (
+            self._width == other._width and self._height == other._height
+            and abs(self._fov_deg - other._fov_deg) <= atol
+            and all(np.allclose(a, b, rtol=0.0, atol=atol) for a, b in (
+                (self._eye, other._eye), (self._target, other._target), (self._up, other._up)))
+        )
+
+    def __repr__(self) -> str:
+        def vec(a: np.ndarray) -> str:
+            return "(" + ", ".join(f"{x:.6g}" for x in a) + ")"
+
+        return (f"Camera(eye={vec(self._eye)}, target={vec(self._target)}, up={vec(self._up)}, "
+                f"fov_deg={self._fov_deg:.6g}, width={self._width}, height={self._height})")
+
+    def __reduce__(self):
+        return (Camera, (self._eye.copy(), self._target.copy(), self._up.copy(),
+                         self._fov_deg, self._width, self._height))
