@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -903,7 +904,7 @@ class CameraPath:
         """Path from dicts like :meth:`Camera.to_dict` with an optional ``"time"``.
 
         Missing times follow :meth:`add` (DEFAULT_KEYFRAME_STEP after the previous one, 0 for
-        the first). ``width``/``height`` default to the first dict's (then 640 x 480).
+        the first); a missing ``up`` is +Y and a missing ``fov_deg`` DEFAULT_FOV_DEG. ``width``/``height`` default to the first dict's (then 640 x 480).
         InputError names the bad entry (``keyframes[i].field``).
         """
         if not isinstance(keyframes, (list, tuple)):

@@ -109,6 +109,25 @@ def test_between_keyframes_stays_bounded(rng, easing):
     assert fovs.min() >= min(key_fovs) - 1e-9 and fovs.max() <= max(key_fovs) + 1e-9
 
 
+def test_repeated_positions_and_rotation_in_place():
+    """Coincident consecutive eyes (a pause, or turning on the spot) give no NaN and the eye
+    stays put between them."""
+    path = CameraPath([Keyframe((0, 0, 5), (0, 0, 0), time=0.0),
+                       Keyframe((1, 0, 5), (0, 0, 0), time=1.0),
+                       Keyframe((1, 0, 5), (0, 1, 0), time=2.0),
+                       Keyframe((3, 0, 5), (0, 1, 0), time=3.0)])
+    cams = path.cameras_at(np.linspace(0.0, 3.0, 301))
+    eyes = np.array([c.eye for c in cams])
+    assert np.all(np.isfinite(eyes))
+    np.testing.assert_allclose(eyes[100:201], np.broadcast_to([1, 0, 5], (101, 3)), atol=1e-9)
+    spin = CameraPath([Keyframe((0, 0, 0), (0, 0, -1), time=0.0),
+                       Keyframe((0, 0, 0), (1, 0, 0), time=1.0),
+                       Keyframe((0, 0, 0), (0, 0, 1), time=2.0)])
+    fwd = np.array([c.forward for c in spin.cameras_at(np.linspace(0.0, 2.0, 81))])
+    assert np.all(np.sum(fwd[1:] * fwd[:-1], 1) > math.cos(math.radians(10)))
+    np.testing.assert_array_equal([c.eye for c in spin.cameras()], np.zeros((61, 3)))
+
+
 # --------------------------------------------------------------------------- smoothness
 
 
