@@ -13,8 +13,42 @@
 
 #include <memory>
 
+#include <chrono>
+#include <thread>
+
 #include "pointviz/cast.h"
+#include "pointviz/render.h"
 #include "pointviz/tree.h"
+#include "pygeometry.h"
+
+namespace nanobind::detail {
+/// Vec3 <-> any sequence of three numbers (tuple on the way out).
+template <>
+struct type_caster<pointviz::Vec3> {
+    NB_TYPE_CASTER(pointviz::Vec3, const_name("tuple[float, float, float]"))
+    bool from_python(handle src, uint8_t, cleanup_list *) noexcept {
+        PyObject *seq = PySequence_Fast(src.ptr(), "");
+        if (!seq) {
+            PyErr_Clear();
+            return false;
+        }
+        bool ok = PySequence_Fast_GET_SIZE(seq) == 3;
+        for (Py_ssize_t k = 0; ok && k < 3; ++k) {
+            double v = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, k));
+            if (v == -1.0 && PyErr_Occurred()) {
+                PyErr_Clear();
+                ok = false;
+            }
+            value[int(k)] = float(v);
+        }
+        Py_DECREF(seq);
+        return ok;
+    }
+    static handle from_cpp(const pointviz::Vec3 &v, rv_policy, cleanup_list *) noexcept {
+        return PyTuple_Pack(3, PyFloat_FromDouble(v.x), PyFloat_FromDouble(v.y), PyFloat_FromDouble(v.z));
+    }
+};
+}  // namespace nanobind::detail
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -75,6 +109,94 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
     return std::make_unique<SurfelTree>(in, origin.data(), opt);
 }
 
+/// A render scene plus the Python objects its geometries depend on.
+struct PyRenderScene {
+    RenderScene scene;
+    std::vector<nb::object> keep_alive;
+    std::vector<PyGeometry *> callbacks;
+};
+
+/// Runs the renderer on a worker thread while this thread, holding the GIL only briefly,
+/// reports progress and watches for cancellation (the poll callback returning False, an
+/// exception in it, or Ctrl-C).
+nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSettings &set,
+                      nb::object poll) {
+    auto fb = std::make_unique<FrameBuffers>();
+    RenderStats st;
+    std::atomic<bool> cancel{false}, done{false};
+    for (PyGeometry *g : ps.callbacks) g->set_cancel(&cancel);
+    std::exception_ptr err;
+    bool completed = false, interrupted = false;
+    std::string poll_error;
+    auto t0 = std::chrono::steady_clock::now();
+    {
+        nb::gil_scoped_release release;
+        std::thread worker([&] {
+            try {
+                completed = render(ps.scene, cam, set, *fb, st, cancel);
+            } catch (...) {
+                err = std::current_exception();
+                cancel = true;
+            }
+            done = true;
+        });
+        uint64_t reported = ~0ull;
+        while (!done.load()) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
+            uint64_t now = st.tiles_done.load();
+            nb::gil_scoped_acquire gil;
+            if (PyErr_CheckSignals() != 0) {
+                PyErr_Clear();
+                interrupted = true;
+                cancel = true;
+            }
+            if (!poll.is_none() && now != reported && !cancel.load()) {
+                reported = now;
+                try {
+                    nb::object r = poll(now, st.tiles_total);
+                    if (!r.is_none() && !nb::cast<bool>(r)) cancel = true;
+                } catch (const std::exception &e) {
+                    poll_error = e.what();
+                    cancel = true;
+                }
+            }
+        }
+        worker.join();
+    }
+    for (PyGeometry *g : ps.callbacks) g->set_cancel(nullptr);
+    if (err) std::rethrow_exception(err);
+    for (PyGeometry *g : ps.callbacks)
+        if (!g->error().empty()) throw std::runtime_error("geometry callback failed: " + g->error());
+    if (!poll_error.empty()) throw std::runtime_error("progress callback failed: " + poll_error);
+    if (interrupted) {
+        PyErr_SetNone(PyExc_KeyboardInterrupt);
+        throw nb::python_error();
+    }
+    double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    nb::dict d;
+    d["completed"] = completed && !cancel.load();
+    d["seconds"] = secs;
+    d["primary_rays"] = st.primary.load();
+    d["shadow_rays"] = st.shadow.load();
+    d["reflection_rays"] = st.reflection.load();
+    d["tiles_done"] = st.tiles_done.load();
+    d["tiles_total"] = st.tiles_total;
+    if (!d["completed"].equal(nb::bool_(true))) return nb::make_tuple(nb::none(), d);
+    size_t h = size_t(cam.height), w = size_t(cam.width);
+    float *c, *dep, *nn, *al;
+    auto ac = new_array<float>({h, w, 3}, &c);
+    auto ad = new_array<float>({h, w}, &dep);
+    auto an = new_array<float>({h, w, 3}, &nn);
+    auto aa = new_array<float>({h, w}, &al);
+    std::copy(fb->color.begin(), fb->color.end(), c);
+    std::copy(fb->depth.begin(), fb->depth.end(), dep);
+    std::copy(fb->normal.begin(), fb->normal.end(), nn);
+    std::copy(fb->alpha.begin(), fb->alpha.end(), al);
+    nb::dict bufs;
+    bufs["color"] = ac; bufs["depth"] = ad; bufs["normal"] = an; bufs["alpha"] = aa;
+    return nb::make_tuple(bufs, d);
+}
+
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -93,6 +215,101 @@ NB_MODULE(_core, m) {
         .def_rw("box_depth", &TraceOptions::box_depth)
         .def_rw("interpolation", &TraceOptions::interp)
         .def_rw("window", &TraceOptions::window);
+
+    nb::class_<CameraModel>(m, "CameraModel")
+        .def(nb::init<>())
+        .def_rw("eye", &CameraModel::eye)
+        .def_rw("forward", &CameraModel::forward)
+        .def_rw("right", &CameraModel::right)
+        .def_rw("up", &CameraModel::up)
+        .def_rw("tan_half", &CameraModel::tan_half)
+        .def_rw("width", &CameraModel::width)
+        .def_rw("height", &CameraModel::height)
+        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle);
+
+    nb::class_<Material>(m, "Material")
+        .def(nb::init<>())
+        .def_rw("base_color", &Material::base_color)
+        .def_rw("use_point_colors", &Material::use_point_colors)
+        .def_rw("diffuse", &Material::diffuse)
+        .def_rw("specular", &Material::specular)
+        .def_rw("shininess", &Material::shininess)
+        .def_rw("mirror", &Material::mirror)
+        .def_rw("roughness", &Material::roughness)
+        .def_rw("checker", &Material::checker)
+        .def_rw("checker_size", &Material::checker_size);
+
+    nb::enum_<LightType>(m, "LightType")
+        .value("directional", LightType::Directional)
+        .value("point", LightType::Point)
+        .value("area", LightType::Area);
+
+    nb::class_<Light>(m, "Light")
+        .def(nb::init<>())
+        .def_rw("type", &Light::type)
+        .def_rw("color", &Light::color)
+        .def_rw("direction", &Light::direction)
+        .def_rw("angle", &Light::angle)
+        .def_rw("position", &Light::position)
+        .def_rw("radius", &Light::radius)
+        .def_rw("edge_u", &Light::edge_u)
+        .def_rw("edge_v", &Light::edge_v);
+
+    nb::class_<Sky>(m, "Sky")
+        .def(nb::init<>())
+        .def_rw("zenith", &Sky::zenith)
+        .def_rw("horizon", &Sky::horizon)
+        .def_rw("below", &Sky::below)
+        .def_rw("up", &Sky::up)
+        .def_rw("ambient", &Sky::ambient)
+        .def_rw("background_is_sky", &Sky::background_is_sky)
+        .def_rw("background", &Sky::background);
+
+    nb::class_<RenderSettings>(m, "RenderSettings")
+        .def(nb::init<>())
+        .def_rw("spp", &RenderSettings::spp)
+        .def_rw("reflections", &RenderSettings::reflections)
+        .def_rw("shadows", &RenderSettings::shadows)
+        .def_rw("lod_pixels", &RenderSettings::lod_pixels)
+        .def_rw("seed", &RenderSettings::seed)
+        .def_rw("threads", &RenderSettings::threads)
+        .def_rw("tile", &RenderSettings::tile)
+        .def_prop_rw("normal_offset", [](const RenderSettings &s) { return s.offsets.normal_offset; },
+                     [](RenderSettings &s, float v) { s.offsets.normal_offset = v; })
+        .def_prop_rw("offset_tmin", [](const RenderSettings &s) { return s.offsets.tmin; },
+                     [](RenderSettings &s, float v) { s.offsets.tmin = v; });
+
+    nb::class_<PyRenderScene>(m, "RenderScene")
+        .def(nb::init<>())
+        .def("add_surfels", [](PyRenderScene &s, nb::object tree_obj, const TraceOptions &opt,
+                               Vec3 offset, const Material &mat) {
+            const SurfelTree *tree = nb::cast<const SurfelTree *>(tree_obj);
+            s.keep_alive.push_back(tree_obj);
+            s.scene.objects.push_back({std::make_shared<SurfelGeometry>(tree, opt, offset), mat});
+        }, "tree"_a, "options"_a, "offset"_a, "material"_a)
+        .def("add_callback", [](PyRenderScene &s, nb::object obj, const Material &mat) {
+            auto g = std::make_shared<PyGeometry>(obj);
+            s.callbacks.push_back(g.get());
+            s.scene.objects.push_back({g, mat});
+        }, "geometry"_a, "material"_a)
+        .def("set_ground", [](PyRenderScene &s, Vec3 point, Vec3 normal, const Material &mat) {
+            s.scene.ground = true;
+            s.scene.ground_point = point;
+            s.scene.ground_normal = normalize(normal);
+            s.scene.ground_material = mat;
+        }, "point"_a, "normal"_a, "material"_a)
+        .def("add_light", [](PyRenderScene &s, const Light &l) {
+            Light c = l;
+            c.direction = normalize(c.direction);
+            s.scene.lights.push_back(c);
+        }, "light"_a)
+        .def_prop_rw("sky", [](const PyRenderScene &s) { return s.scene.sky; },
+                     [](PyRenderScene &s, const Sky &k) { s.scene.sky = k; s.scene.sky.up = normalize(k.up); })
+        .def_prop_rw("scale", [](const PyRenderScene &s) { return s.scene.scale; },
+                     [](PyRenderScene &s, float v) { s.scene.scale = v; })
+        .def_prop_ro("n_objects", [](const PyRenderScene &s) { return s.scene.objects.size(); });
+
+    m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none());
 
     nb::class_<SurfelTree>(m, "SurfelTree")
         .def(nb::new_(&make_tree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),

@@ -1,0 +1,126 @@
+// pointviz — final frames: camera, materials, lights, shadows, reflections (issue "final frames").
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "pointviz/geometry.h"
+
+namespace pointviz {
+
+/// Pinhole camera in the scene's local frame; the ray model of pointviz.Camera.
+struct CameraModel {
+    Vec3 eye, forward, right, up;   ///< orthonormal basis; up is the true up
+    float tan_half = 0.36397f;      ///< tan(vertical fov / 2)
+    int width = 640, height = 480;
+
+    float aspect() const { return float(width) / float(height); }
+    /// Angle subtended by one pixel at the image centre.
+    float pixel_angle() const { return 2.f * std::atan(tan_half / float(height)); }
+    /// Unit direction through (col + u, row + v), u, v in [0, 1).
+    Vec3 direction(float col, float row) const {
+        float sx = (2.f * col / float(width) - 1.f) * tan_half * aspect();
+        float sy = (1.f - 2.f * row / float(height)) * tan_half;
+        return normalize(forward + right * sx + up * sy);
+    }
+};
+
+/// Surface appearance. Colours are linear RGB.
+struct Material {
+    Vec3 base_color{0.8f, 0.8f, 0.8f};
+    bool use_point_colors = true;   ///< multiply by the hit's colour (sRGB-decoded)
+    float diffuse = 1.f;            ///< Lambert weight
+    float specular = 0.15f;         ///< Blinn–Phong lobe weight
+    float shininess = 48.f;         ///< Blinn–Phong exponent
+    float mirror = 0.f;             ///< reflectivity in [0, 1]
+    float roughness = 0.f;          ///< 0: sharp mirror; > 0: glossy reflections (lobe width)
+    Vec3 checker{0.f, 0.f, 0.f};    ///< ground only: second colour of a checkerboard (0: none)
+    float checker_size = 0.f;       ///< ground only: checker cell size (0: none)
+};
+
+enum class LightType : uint8_t { Directional = 0, Point = 1, Area = 2 };
+
+/// A light. Directional: `direction` points toward the light, `angle` is its angular radius
+/// (soft shadows). Point: `position`, inverse-square falloff, `radius` softens. Area: a
+/// parallelogram at `position` spanned by `edge_u`, `edge_v`, emitting on both sides.
+struct Light {
+    LightType type = LightType::Directional;
+    Vec3 color{1.f, 1.f, 1.f};      ///< linear RGB intensity
+    Vec3 direction{0.f, 1.f, 0.f};
+    float angle = 0.f;
+    Vec3 position{0.f, 0.f, 0.f};
+    float radius = 0.f;
+    Vec3 edge_u{0.f, 0.f, 0.f}, edge_v{0.f, 0.f, 0.f};
+};
+
+/// Sky seen by misses and the ambient term: a gradient from horizon to zenith.
+struct Sky {
+    Vec3 zenith{0.55f, 0.65f, 0.8f};
+    Vec3 horizon{0.9f, 0.9f, 0.92f};
+    Vec3 below{0.35f, 0.33f, 0.3f};
+    Vec3 up{0.f, 1.f, 0.f};
+    float ambient = 0.25f;          ///< strength of the sky's ambient light on surfaces
+    bool background_is_sky = true;  ///< primary misses show the sky, else `background`
+    Vec3 background{1.f, 1.f, 1.f};
+};
+
+/// Self-intersection policy for rays leaving a surface (shadow and reflection rays). Surfels
+/// overlap and tilt: a neighbour of the hit disk may rise above the hit point's tangent plane by
+/// up to about its radius on curved surfaces. Rays therefore start `normal_offset` local radii
+/// above the surface and ignore hits closer than `tmin` local radii. The local radius is the
+/// larger of the blended disk radius and the pixel footprint (LoD disks are footprint-sized).
+struct OffsetPolicy {
+    float normal_offset = 0.5f;
+    float tmin = 1.0f;
+};
+
+struct RenderSettings {
+    int spp = 4;                 ///< samples per pixel (stratified)
+    int reflections = 1;         ///< reflection bounces
+    bool shadows = true;
+    float lod_pixels = 1.f;      ///< 0: full detail
+    uint64_t seed = 0;
+    int threads = 0;
+    int tile = 16;               ///< tile edge in pixels
+    OffsetPolicy offsets;
+};
+
+/// Output buffers, row-major from the top-left pixel.
+struct FrameBuffers {
+    std::vector<float> color;    ///< (h, w, 3) linear
+    std::vector<float> depth;    ///< (h, w) mean distance over samples that hit; inf if none
+    std::vector<float> normal;   ///< (h, w, 3) mean shading normal of the hits
+    std::vector<float> alpha;    ///< (h, w) fraction of samples that hit geometry
+};
+
+/// Counters of one render.
+struct RenderStats {
+    std::atomic<uint64_t> primary{0}, shadow{0}, reflection{0};
+    std::atomic<uint64_t> tiles_done{0};
+    uint64_t tiles_total = 0;
+};
+
+/// What a frame shows: objects (geometry + material), an optional ground plane, lights, sky.
+struct RenderScene {
+    struct Object {
+        std::shared_ptr<const Geometry> geometry;
+        Material material;
+    };
+    std::vector<Object> objects;
+    bool ground = false;
+    Vec3 ground_point{0.f, 0.f, 0.f}, ground_normal{0.f, 1.f, 0.f};
+    Material ground_material;
+    std::vector<Light> lights;
+    Sky sky;
+    float scale = 1.f;   ///< size of the scene (bounding radius): floor of ray offsets
+};
+
+/// Renders a frame. Deterministic for a given seed whatever the thread count. `cancel` stops it
+/// between tiles (the buffers are then incomplete: callers must discard them). Returns false
+/// when cancelled.
+bool render(const RenderScene &scene, const CameraModel &camera, const RenderSettings &settings,
+            FrameBuffers &out, RenderStats &stats, const std::atomic<bool> &cancel);
+
+}  // namespace pointviz

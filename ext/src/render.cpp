@@ -1,0 +1,368 @@
+// pointviz — the tile renderer: primary rays, shading, shadow rays, reflections.
+//
+// Each tile runs as a small wavefront: all its rays are intersected as one batch, shaded, and
+// their shadow and reflection rays traced as further batches. A batch interface is what lets a
+// geometry backend behind a Python callback (embreex meshes) share this exact shading code.
+#include "pointviz/render.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "pointviz/parallel.h"
+
+namespace pointviz {
+namespace {
+
+constexpr float kPi = 3.14159265358979f;
+/// R2 low-discrepancy sequence constants (Roberts 2018): well-stratified for any sample count.
+constexpr double kR2a = 0.7548776662466927, kR2b = 0.5698402909980532;
+/// Smallest offset for rays leaving a surface, relative to the scene's size: keeps offsets
+/// above float rounding where neither a disk radius nor a footprint is available.
+constexpr float kMinOffsetRel = 1e-5f;
+
+/// A counter-based random number: depends only on its key, never on thread scheduling.
+inline float rand01(uint64_t seed, uint64_t pixel, uint32_t sample, uint32_t dim) {
+    uint64_t z = seed * 0x9E3779B97F4A7C15ull ^ (pixel * 0xBF58476D1CE4E5B9ull) ^
+                 (uint64_t(sample) << 32 | dim) * 0x94D049BB133111EBull;
+    z ^= z >> 30;
+    z *= 0xBF58476D1CE4E5B9ull;
+    z ^= z >> 27;
+    z *= 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    return float(z >> 40) * (1.f / 16777216.f);
+}
+
+inline float srgb_to_linear(float c) {
+    return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+/// Uniform direction in the cone of half-angle `angle` around unit `axis`.
+inline Vec3 sample_cone(Vec3 axis, float angle, float u1, float u2) {
+    float cos_max = std::cos(angle);
+    float cz = 1.f - u1 * (1.f - cos_max);
+    float sz = std::sqrt(std::max(0.f, 1.f - cz * cz));
+    float phi = 2.f * kPi * u2;
+    Vec3 t, b;
+    make_basis(axis, t, b);
+    return normalize(t * (sz * std::cos(phi)) + b * (sz * std::sin(phi)) + axis * cz);
+}
+
+/// One path vertex waiting to be intersected.
+struct PathRay {
+    Ray ray;
+    Vec3 weight;       ///< throughput, including 1/spp
+    uint32_t pixel;    ///< index within the tile
+    uint32_t sample;
+};
+
+/// A shadow ray and what it adds if it reaches the light.
+struct ShadowRay {
+    Ray ray;
+    Vec3 add;
+    uint32_t pixel;
+};
+
+struct Nearest {
+    SurfaceHit hit;
+    int object;   ///< -1 miss, -2 ground, else object index
+};
+
+class TileRenderer {
+public:
+    TileRenderer(const RenderScene &s, const CameraModel &c, const RenderSettings &st,
+                 float scale, RenderStats &stats)
+        : scene_(s), cam_(c), set_(st), min_offset_(kMinOffsetRel * scale), stats_(stats) {}
+
+    void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
+        const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
+        const int spp = std::max(1, set_.spp);
+        color_.assign(size_t(npix), Vec3{0, 0, 0});
+        depth_sum_.assign(size_t(npix), 0.f);
+        nsum_.assign(size_t(npix), Vec3{0, 0, 0});
+        hits_.assign(size_t(npix), 0u);
+        rays_.clear();
+        const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
+        for (int y = y0; y < y1; ++y)
+            for (int x = x0; x < x1; ++x) {
+                uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
+                float sx = rand01(set_.seed, gp, 0, 0), sy = rand01(set_.seed, gp, 0, 1);
+                for (int s = 0; s < spp; ++s) {
+                    float u = 0.5f, v = 0.5f;
+                    if (spp > 1) {   // R2 points, shifted per pixel (Cranley–Patterson)
+                        u = float(std::fmod(kR2a * s + sx, 1.0));
+                        v = float(std::fmod(kR2b * s + sy, 1.0));
+                    }
+                    PathRay pr;
+                    pr.ray.o = cam_.eye;
+                    pr.ray.d = cam_.direction(float(x) + u, float(y) + v);
+                    pr.ray.spread = spread;
+                    pr.weight = Vec3{1, 1, 1} * (1.f / float(spp));
+                    pr.pixel = uint32_t((y - y0) * tw + (x - x0));
+                    pr.sample = uint32_t(s);
+                    rays_.push_back(pr);
+                }
+            }
+        stats_.primary += rays_.size();
+        for (int bounce = 0; !rays_.empty(); ++bounce) {
+            trace_bounce(bounce, x0, y0, tw);
+            if (bounce >= set_.reflections) break;
+            rays_.swap(next_);
+            stats_.reflection += rays_.size();
+        }
+        for (int y = y0; y < y1; ++y)
+            for (int x = x0; x < x1; ++x) {
+                size_t lp = size_t((y - y0) * tw + (x - x0));
+                size_t gp = size_t(y) * size_t(cam_.width) + size_t(x);
+                for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = color_[lp][k];
+                uint32_t h = hits_[lp];
+                out.alpha[gp] = float(h) / float(spp);
+                out.depth[gp] = h ? depth_sum_[lp] / float(h) : kInf;
+                Vec3 n = h ? normalize(nsum_[lp]) : Vec3{0, 0, 0};
+                for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = n[k];
+            }
+    }
+
+private:
+    void intersect(std::vector<Nearest> &near) {
+        const size_t n = rays_.size();
+        near.assign(n, Nearest{SurfaceHit{}, -1});
+        batch_.resize(n);
+        for (size_t i = 0; i < n; ++i) batch_[i] = rays_[i].ray;
+        tmp_.resize(n);
+        for (size_t o = 0; o < scene_.objects.size(); ++o) {
+            for (size_t i = 0; i < n; ++i) batch_[i].tmax = std::min(rays_[i].ray.tmax, near[i].hit.t);
+            scene_.objects[o].geometry->intersect(batch_.data(), n, tmp_.data());
+            for (size_t i = 0; i < n; ++i)
+                if (tmp_[i].t < near[i].hit.t) near[i] = {tmp_[i], int(o)};
+        }
+        if (scene_.ground) {
+            for (size_t i = 0; i < n; ++i) {
+                const Ray &r = rays_[i].ray;
+                float den = dot(r.d, scene_.ground_normal);
+                if (std::fabs(den) < kParallelCos) continue;
+                float t = dot(scene_.ground_point - r.o, scene_.ground_normal) / den;
+                if (t > r.tmin && t < std::min(r.tmax, near[i].hit.t)) {
+                    SurfaceHit h;
+                    h.t = t;
+                    h.n = scene_.ground_normal;
+                    h.color = {1, 1, 1};
+                    h.radius = 0.f;
+                    h.count = 1;
+                    near[i] = {h, -2};
+                }
+            }
+        }
+    }
+
+    Vec3 sky(Vec3 d) const {
+        float e = dot(d, scene_.sky.up);
+        if (e >= 0.f) {
+            float k = std::pow(1.f - e, 3.f);
+            return scene_.sky.zenith * (1.f - k) + scene_.sky.horizon * k;
+        }
+        float k = std::min(1.f, -e * 4.f);
+        return scene_.sky.horizon * (1.f - k) + scene_.sky.below * k;
+    }
+
+    /// Ambient light from the sky on a surface of normal n (hemisphere blend).
+    Vec3 ambient(Vec3 n) const {
+        float e = 0.5f + 0.5f * dot(n, scene_.sky.up);
+        Vec3 top = (scene_.sky.zenith + scene_.sky.horizon) * 0.5f;
+        return (top * e + scene_.sky.below * (1.f - e)) * scene_.sky.ambient;
+    }
+
+    void trace_bounce(int bounce, int x0, int y0, int tw) {
+        std::vector<Nearest> near;
+        intersect(near);
+        shadows_.clear();
+        next_.clear();
+        const int spp = std::max(1, set_.spp);
+        for (size_t i = 0; i < rays_.size(); ++i) {
+            const PathRay &pr = rays_[i];
+            const Nearest &nh = near[i];
+            const Ray &r = pr.ray;
+            if (nh.object == -1) {
+                Vec3 bg = (bounce == 0 && !scene_.sky.background_is_sky) ? scene_.sky.background : sky(r.d);
+                color_[pr.pixel] += pr.weight * bg;
+                continue;
+            }
+            const SurfaceHit &h = nh.hit;
+            Vec3 p = r.o + r.d * h.t;
+            Vec3 n = dot(h.n, r.d) > 0.f ? -h.n : h.n;
+            if (bounce == 0) {
+                depth_sum_[pr.pixel] += h.t;
+                nsum_[pr.pixel] += n;
+                hits_[pr.pixel] += 1;
+            }
+            const Material &m = nh.object == -2 ? scene_.ground_material
+                                                : scene_.objects[size_t(nh.object)].material;
+            Vec3 albedo = m.base_color;
+            if (nh.object >= 0 && m.use_point_colors)
+                albedo = albedo * Vec3{srgb_to_linear(h.color.x), srgb_to_linear(h.color.y),
+                                       srgb_to_linear(h.color.z)};
+            if (nh.object == -2 && m.checker_size > 0.f) {
+                Vec3 t, b;
+                make_basis(scene_.ground_normal, t, b);
+                long cx = long(std::floor(dot(p, t) / m.checker_size));
+                long cy = long(std::floor(dot(p, b) / m.checker_size));
+                if ((cx + cy) & 1) albedo = m.checker;
+            }
+            const float keep = 1.f - m.mirror;
+            const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
+            const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
+            const float tmin = set_.offsets.tmin * scale;
+            const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
+            const uint32_t dim0 = uint32_t(bounce) * 16u;
+            color_[pr.pixel] += pr.weight * albedo * ambient(n) * (keep * m.diffuse);
+            for (size_t li = 0; li < scene_.lights.size(); ++li) {
+                const Light &L = scene_.lights[li];
+                float u1 = rand01(set_.seed, gp, pr.sample, dim0 + 2 + 2 * uint32_t(li));
+                float u2 = rand01(set_.seed, gp, pr.sample, dim0 + 3 + 2 * uint32_t(li));
+                Vec3 ldir, radiance = L.color;
+                float dist = kInf;
+                if (L.type == LightType::Directional) {
+                    ldir = L.angle > 0.f ? sample_cone(L.direction, L.angle, u1, u2) : L.direction;
+                } else {
+                    Vec3 q = L.position;
+                    float cos_light = 1.f;
+                    if (L.type == LightType::Area) {
+                        q = q + L.edge_u * u1 + L.edge_v * u2;
+                        Vec3 ln = normalize(cross(L.edge_u, L.edge_v));
+                        Vec3 dq = normalize(q - p);
+                        cos_light = std::fabs(dot(ln, dq));
+                    } else if (L.radius > 0.f) {
+                        q = q + sample_cone(normalize(p - q), 0.5f * kPi, u1, u2) * L.radius;
+                    }
+                    Vec3 dq = q - p;
+                    dist = length(dq);
+                    if (!(dist > 0.f)) continue;
+                    ldir = dq / dist;
+                    radiance = L.color * (cos_light / (dist * dist));
+                }
+                float ndl = dot(n, ldir);
+                if (ndl <= 0.f) continue;
+                Vec3 hv = normalize(ldir - r.d);
+                float spec = m.specular * std::pow(std::max(0.f, dot(n, hv)), m.shininess);
+                Vec3 add = pr.weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
+                if (!set_.shadows) {
+                    color_[pr.pixel] += add;
+                    continue;
+                }
+                ShadowRay sr;
+                sr.ray.o = origin;
+                sr.ray.d = ldir;
+                sr.ray.tmin = tmin;
+                sr.ray.tmax = dist == kInf ? kInf : std::max(0.f, dist * (1.f - 1e-4f) - set_.offsets.normal_offset * scale);
+                sr.ray.width0 = r.footprint(h.t);
+                sr.ray.spread = 0.f;
+                sr.add = add;
+                sr.pixel = pr.pixel;
+                shadows_.push_back(sr);
+            }
+            if (m.mirror > 0.f && bounce < set_.reflections) {
+                Vec3 rd = reflect(r.d, n);
+                if (m.roughness > 0.f) {
+                    float u1 = rand01(set_.seed, gp, pr.sample, dim0 + 14);
+                    float u2 = rand01(set_.seed, gp, pr.sample, dim0 + 15);
+                    Vec3 g = sample_cone(rd, std::min(m.roughness, 1.f) * 0.5f * kPi, u1, u2);
+                    rd = dot(g, n) > 0.f ? g : rd;
+                }
+                PathRay nr;
+                nr.ray.o = origin;
+                nr.ray.d = rd;
+                nr.ray.tmin = tmin;
+                nr.ray.width0 = r.footprint(h.t);
+                nr.ray.spread = r.spread + m.roughness;
+                nr.weight = pr.weight * m.mirror;
+                nr.pixel = pr.pixel;
+                nr.sample = pr.sample;
+                next_.push_back(nr);
+            }
+        }
+        trace_shadows();
+    }
+
+    void trace_shadows() {
+        const size_t n = shadows_.size();
+        if (n == 0) return;
+        stats_.shadow += n;
+        std::vector<uint8_t> blocked(n, 0), tmp;
+        std::vector<uint32_t> live(n);
+        for (size_t i = 0; i < n; ++i) live[i] = uint32_t(i);
+        for (const auto &obj : scene_.objects) {
+            if (live.empty()) break;
+            batch_.resize(live.size());
+            for (size_t k = 0; k < live.size(); ++k) batch_[k] = shadows_[live[k]].ray;
+            tmp.assign(live.size(), 0);
+            obj.geometry->occluded(batch_.data(), live.size(), tmp.data());
+            size_t w = 0;
+            for (size_t k = 0; k < live.size(); ++k) {
+                if (tmp[k]) blocked[live[k]] = 1;
+                else live[w++] = live[k];
+            }
+            live.resize(w);
+        }
+        for (uint32_t i : live) {
+            const ShadowRay &s = shadows_[i];
+            if (scene_.ground) {
+                float den = dot(s.ray.d, scene_.ground_normal);
+                if (std::fabs(den) >= kParallelCos) {
+                    float t = dot(scene_.ground_point - s.ray.o, scene_.ground_normal) / den;
+                    if (t > s.ray.tmin && t < s.ray.tmax) continue;
+                }
+            }
+            color_[s.pixel] += s.add;
+        }
+    }
+
+    uint64_t pixel_id(uint32_t local, int x0, int y0, int tw) const {
+        int y = y0 + int(local) / tw, x = x0 + int(local) % tw;
+        return uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
+    }
+
+    const RenderScene &scene_;
+    const CameraModel &cam_;
+    const RenderSettings &set_;
+    float min_offset_;
+    RenderStats &stats_;
+    std::vector<Vec3> color_, nsum_;
+    std::vector<float> depth_sum_;
+    std::vector<uint32_t> hits_;
+    std::vector<PathRay> rays_, next_;
+    std::vector<ShadowRay> shadows_;
+    std::vector<Ray> batch_;
+    std::vector<SurfaceHit> tmp_;
+};
+
+}  // namespace
+
+bool render(const RenderScene &scene, const CameraModel &camera, const RenderSettings &settings,
+            FrameBuffers &out, RenderStats &stats, const std::atomic<bool> &cancel) {
+    const int w = camera.width, h = camera.height;
+    const size_t np = size_t(w) * size_t(h);
+    out.color.assign(3 * np, 0.f);
+    out.depth.assign(np, kInf);
+    out.normal.assign(3 * np, 0.f);
+    out.alpha.assign(np, 0.f);
+    bool thread_safe = true;
+    for (const auto &o : scene.objects) thread_safe = thread_safe && o.geometry->thread_safe();
+    // A callback backend gets bigger tiles: fewer, larger batches per call.
+    const int tile = std::max(1, thread_safe ? settings.tile : settings.tile * 4);
+    const int tx = (w + tile - 1) / tile, ty = (h + tile - 1) / tile;
+    stats.tiles_total = uint64_t(tx) * uint64_t(ty);
+    const float scale = scene.scale > 0.f ? scene.scale : 1.f;
+    const int threads = thread_safe ? settings.threads : 1;
+    std::vector<std::unique_ptr<TileRenderer>> workers(size_t(resolve_threads(threads)));
+    parallel_for(stats.tiles_total, 1, threads, [&](size_t b, size_t e, int worker) {
+        auto &tr = workers[size_t(worker)];
+        if (!tr) tr = std::make_unique<TileRenderer>(scene, camera, settings, scale, stats);
+        for (size_t t = b; t < e; ++t) {
+            int x0 = int(t % size_t(tx)) * tile, y0 = int(t / size_t(tx)) * tile;
+            tr->render_tile(x0, y0, std::min(w, x0 + tile), std::min(h, y0 + tile), out);
+            stats.tiles_done += 1;
+        }
+    }, &cancel);
+    return !cancel.load();
+}
+
+}  // namespace pointviz

@@ -1,0 +1,144 @@
+"""Writing images: tone mapping, sRGB encoding, 8/16-bit PNG, EXR; always atomically."""
+
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+TONEMAPS = ("aces", "reinhard", "clamp")
+
+
+def tonemap(color: np.ndarray, exposure: float = 1.0, mode: str = "aces") -> np.ndarray:
+    """Linear radiance (h, w, 3) -> display-linear values in [0, 1]."""
+    if mode not in TONEMAPS:
+        raise InputError(f"tonemap: expected one of {TONEMAPS}, got {mode!r}")
+    x = np.maximum(np.asarray(color, dtype=np.float32) * np.float32(exposure), 0.0)
+    if mode == "aces":  # Narkowicz's fit of the ACES filmic curve
+        x = (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
+    elif mode == "reinhard":
+        x = x / (1.0 + x)
+    return np.clip(x, 0.0, 1.0)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
+    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
+
+
+def to_srgb8(color: np.ndarray, exposure: float = 1.0, mode: str = "aces") -> np.ndarray:
+    """Linear radiance (h, w, 3) -> (h, w, 3) uint8 sRGB."""
+    return np.round(linear_to_srgb(tonemap(color, exposure, mode)) * 255.0).astype(np.uint8)
+
+
+def check_output_path(path, overwrite: bool) -> Path:
+    """Refuse to replace an existing file unless asked; make sure the folder exists."""
+    p = Path(path)
+    if p.exists() and not overwrite:
+        raise FileExistsError(f"{p}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
+    if p.exists() and p.is_dir():
+        raise InputError(f"{p}: is a folder, not a file")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{p}: folder {parent} does not exist")
+    return p
+
+
+def atomic_write_bytes(path, data: bytes, overwrite: bool = False) -> Path:
+    """Write to a temporary file beside ``path``, then rename: readers never see half a file."""
+    p = check_output_path(path, overwrite)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return p
+
+
+def encode_png(pixels: np.ndarray) -> bytes:
+    """PNG bytes of an (h, w, c) uint8 or uint16 array (c in 1, 3, 4)."""
+    arr = np.asarray(pixels)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    h, w, c = arr.shape
+    ctype = {1: 0, 3: 2, 4: 6}[c]
+    if arr.dtype == np.uint16:
+        depth, raw = 16, arr.astype(">u2").tobytes()
+        row = w * c * 2
+    elif arr.dtype == np.uint8:
+        depth, raw = 8, arr.tobytes()
+        row = w * c
+    else:
+        raise InputError(f"encode_png: expected uint8 or uint16 pixels, got {arr.dtype}")
+    lines = b"".join(b"\x00" + raw[i * row:(i + 1) * row] for i in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    ihdr = struct.pack(">IIBBBBB", w, h, depth, ctype, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(lines, 6))
+            + chunk(b"IEND", b""))
+
+
+def save_image(path, color: np.ndarray, *, alpha: np.ndarray | None = None, bits: int = 8,
+               exposure: float = 1.0, tonemap_mode: str = "aces", overwrite: bool = False) -> Path:
+    """Save linear radiance as PNG (8 or 16 bit sRGB) or EXR (linear float, needs OpenEXR)."""
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext == ".exr":
+        return _save_exr(p, color, overwrite)
+    if ext != ".png":
+        raise InputError(f"{p}: unsupported image format {ext or '(none)'}; use .png or .exr")
+    if bits not in (8, 16):
+        raise InputError(f"bits: expected 8 or 16, got {bits!r}")
+    srgb = linear_to_srgb(tonemap(color, exposure, tonemap_mode))
+    if alpha is not None:
+        srgb = np.concatenate([srgb, np.clip(alpha, 0, 1)[:, :, None]], axis=2)
+    scale = 255.0 if bits == 8 else 65535.0
+    px = np.round(srgb * scale).astype(np.uint8 if bits == 8 else np.uint16)
+    return atomic_write_bytes(p, encode_png(px), overwrite)
+
+
+def _save_exr(p: Path, color: np.ndarray, overwrite: bool) -> Path:
+    try:
+        import OpenEXR  # noqa: F401
+    except ImportError:
+        from .errors import MissingDependencyError
+
+        raise MissingDependencyError(
+            f"{p}: writing EXR needs the OpenEXR package: pip install OpenEXR") from None
+    import OpenEXR
+
+    check_output_path(p, overwrite)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".exr", dir=p.parent or ".")
+    os.close(fd)
+    try:
+        rgb = np.ascontiguousarray(np.asarray(color, dtype=np.float32))
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        with OpenEXR.File(header, {"RGB": rgb}) as f:
+            f.write(tmp)
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return p

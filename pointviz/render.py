@@ -1,0 +1,188 @@
+"""Final frames: ``pointviz.render(scene_or_cloud, camera, ...)`` and the :class:`Frame` it returns."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import _core
+from .errors import CancelledError, InputError
+
+
+@dataclass
+class Frame:
+    """A rendered frame. Buffers are row-major from the top-left pixel.
+
+    Attributes
+    ----------
+    color : (h, w, 3) float32
+        Linear RGB radiance.
+    depth : (h, w) float32
+        Mean distance along the primary rays that hit; inf where none did.
+    normal : (h, w, 3) float32
+        Mean shading normal (facing the camera); zero where nothing was hit.
+    alpha : (h, w) float32
+        Fraction of the pixel's samples that hit geometry (coverage).
+    stats : dict
+        ``seconds``, ray counts, ``rays_per_second`` and the settings used.
+    """
+
+    color: np.ndarray
+    depth: np.ndarray
+    normal: np.ndarray
+    alpha: np.ndarray
+    stats: dict = field(default_factory=dict)
+    camera: object = None
+
+    @property
+    def width(self) -> int:
+        return int(self.color.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.color.shape[0])
+
+    def to_srgb8(self, exposure: float = 1.0, tonemap: str = "aces") -> np.ndarray:
+        """(h, w, 3) uint8 display image."""
+        from .imageio import to_srgb8
+
+        return to_srgb8(self.color, exposure, tonemap)
+
+    def save(self, path, *, bits: int = 8, exposure: float = 1.0, tonemap: str = "aces",
+             alpha: bool = False, overwrite: bool = False) -> Path:
+        """Write the frame: ``.png`` (sRGB, 8 or 16 bits, optional alpha) or ``.exr`` (linear).
+
+        The file appears atomically; an existing file is kept unless ``overwrite=True``.
+        """
+        from .imageio import save_image
+
+        return save_image(path, self.color, alpha=self.alpha if alpha else None, bits=bits,
+                          exposure=exposure, tonemap_mode=tonemap, overwrite=overwrite)
+
+
+def as_scene(scene_or_cloud, **scene_kw):
+    """A :class:`~pointviz.scene.Scene` for a PointCloud, a SurfelScene or a Scene."""
+    from .scene import Scene
+
+    if isinstance(scene_or_cloud, Scene):
+        return scene_or_cloud
+    if hasattr(scene_or_cloud, "points") or hasattr(scene_or_cloud, "cast_rays") or isinstance(
+            scene_or_cloud, (list, tuple)):
+        return Scene(scene_or_cloud, **scene_kw)
+    raise InputError(
+        f"scene_or_cloud: expected a PointCloud, SurfelScene or Scene, got {type(scene_or_cloud).__name__}")
+
+
+def camera_model(camera, origin) -> _core.CameraModel:
+    """The C++ camera for ``camera`` in a frame centred on ``origin``."""
+    cm = _core.CameraModel()
+    cm.eye = tuple(np.asarray(camera.eye, dtype=np.float64) - origin)
+    cm.forward = tuple(camera.forward)
+    cm.right = tuple(camera.right)
+    cm.up = tuple(camera.true_up)
+    cm.tan_half = float(camera.tan_half)
+    cm.width = int(camera.width)
+    cm.height = int(camera.height)
+    return cm
+
+
+def _check_int(value, name, lo, hi):
+    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and lo <= value <= hi):
+        raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {value!r}")
+    return int(value)
+
+
+def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
+           lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
+           cancel=None, ground=None) -> Frame:
+    """Ray trace a frame.
+
+    Parameters
+    ----------
+    scene_or_cloud : PointCloud, SurfelScene or Scene
+        A SurfelScene's tree is reused; a PointCloud gets a scene with default lights and ground.
+    camera : Camera
+    shadows : bool
+        Trace shadow rays (any-hit queries).
+    reflections : int
+        Mirror/glossy bounces (0..16).
+    spp : int
+        Samples per pixel, stratified (R2 sequence with a per-pixel shift); 1 = pixel centres.
+    lod_pixels : float
+        Level-of-detail threshold in pixels; 0 traces at full detail.
+    seed : int
+        The frame is a deterministic function of the seed, whatever ``threads`` is.
+    threads : int, optional
+        Default: all cores.
+    progress : callable(done, total), optional
+        Called from the calling thread as tiles complete; returning False cancels.
+    cancel : threading.Event or callable, optional
+        Set (or returning True) to stop the render; :class:`CancelledError` is raised.
+    ground : str or Material, optional
+        Overrides the scene's ground (for a PointCloud input).
+
+    Returns
+    -------
+    Frame
+    """
+    from .scene import Scene
+
+    if camera is None or not hasattr(camera, "pixel_angle"):
+        raise InputError("camera: expected a pointviz.Camera")
+    kw = {} if ground is None else {"ground": ground}
+    scene = as_scene(scene_or_cloud, **kw)
+    if ground is not None and isinstance(scene_or_cloud, Scene):
+        scene = scene.with_ground(ground)
+    spp = _check_int(spp, "spp", 1, 4096)
+    reflections = _check_int(reflections, "reflections", 0, 16)
+    seed = _check_int(seed, "seed", 0, 2**63 - 1)
+    if threads is not None:
+        threads = _check_int(threads, "threads", 1, 1024)
+    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
+        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
+
+    rs, origin = scene.to_core(camera, lod_pixels)
+    settings = _core.RenderSettings()
+    settings.spp = spp
+    settings.reflections = reflections
+    settings.shadows = bool(shadows)
+    settings.lod_pixels = float(lod_pixels)
+    settings.seed = seed
+    settings.threads = threads or 0
+
+    is_cancelled = _cancel_check(cancel)
+
+    def poll(done, total):
+        if is_cancelled():
+            return False
+        if progress is not None:
+            r = progress(int(done), int(total))
+            if r is False:
+                return False
+        return True
+
+    bufs, stats = _core.render(rs, camera_model(camera, origin), settings, poll)
+    if bufs is None:
+        raise CancelledError("render cancelled")
+    stats = dict(stats)
+    total_rays = stats["primary_rays"] + stats["shadow_rays"] + stats["reflection_rays"]
+    stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
+    stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
+    stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
+                         "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads}
+    if progress is not None:
+        progress(stats["tiles_total"], stats["tiles_total"])
+    return Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera)
+
+
+def _cancel_check(cancel):
+    if cancel is None:
+        return lambda: False
+    if isinstance(cancel, threading.Event) or hasattr(cancel, "is_set"):
+        return cancel.is_set
+    if callable(cancel):
+        return lambda: bool(cancel())
+    raise InputError("cancel: expected a threading.Event or a callable returning True to stop")

@@ -1,0 +1,349 @@
+"""What a frame shows: surfel clouds (or meshes) with materials, a ground plane, lights and a sky.
+
+The scene model is deliberately small: one material per object, three kinds of light and an
+optional infinite ground plane. ``Scene.to_core`` turns it into the C++ render scene; the same
+scene with a mesh backend in place of the surfels renders with identical shading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import _core
+from .errors import InputError
+
+_Y_UP = (0.0, 1.0, 0.0)
+
+
+def _rgb(value, name: str) -> tuple[float, float, float]:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.isfinite(arr).all() or (arr < 0).any():
+        raise InputError(f"{name}: expected three finite non-negative numbers, got {value!r}")
+    return tuple(float(v) for v in arr)
+
+
+def _unit(value, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise InputError(f"{name}: expected three finite numbers, got {value!r}")
+    n = np.linalg.norm(arr)
+    if not n > 0:
+        raise InputError(f"{name}: must not be the zero vector")
+    return arr / n
+
+
+def _in_range(value, name: str, lo: float, hi: float) -> float:
+    v = float(value)
+    if not (np.isfinite(v) and lo <= v <= hi):
+        raise InputError(f"{name}: expected a number in [{lo}, {hi}], got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Material:
+    """Surface appearance (linear RGB).
+
+    Parameters
+    ----------
+    color : (3,) float
+        Base colour; multiplied by per-point colours when ``use_point_colors`` and the cloud has
+        them.
+    diffuse, specular : float
+        Lambert and Blinn–Phong weights; ``shininess`` is the lobe exponent.
+    mirror : float in [0, 1]
+        Reflectivity; ``roughness`` > 0 blurs reflections (glossy).
+    checker, checker_size : optional
+        Ground only: second colour and cell size of a checkerboard.
+    """
+
+    color: tuple = (0.8, 0.8, 0.8)
+    use_point_colors: bool = True
+    diffuse: float = 1.0
+    specular: float = 0.15
+    shininess: float = 48.0
+    mirror: float = 0.0
+    roughness: float = 0.0
+    checker: tuple | None = None
+    checker_size: float = 0.0
+
+    def __post_init__(self):
+        _rgb(self.color, "material.color")
+        _in_range(self.mirror, "material.mirror", 0.0, 1.0)
+        _in_range(self.roughness, "material.roughness", 0.0, 1.0)
+        _in_range(self.diffuse, "material.diffuse", 0.0, 10.0)
+        _in_range(self.specular, "material.specular", 0.0, 10.0)
+        _in_range(self.shininess, "material.shininess", 0.0, 1e4)
+        _in_range(self.checker_size, "material.checker_size", 0.0, 1e30)
+
+    @classmethod
+    def matte(cls, color=(0.8, 0.8, 0.8), **kw) -> Material:
+        return cls(color=color, specular=0.05, **kw)
+
+    @classmethod
+    def glossy(cls, color=(0.8, 0.8, 0.8), **kw) -> Material:
+        return cls(color=color, specular=0.4, shininess=96.0, mirror=0.25, roughness=0.08, **kw)
+
+    @classmethod
+    def reflective(cls, color=(0.9, 0.9, 0.9), mirror=0.85, **kw) -> Material:
+        return cls(color=color, specular=0.0, mirror=mirror, **kw)
+
+    def to_core(self) -> _core.Material:
+        m = _core.Material()
+        m.base_color = _rgb(self.color, "material.color")
+        m.use_point_colors = bool(self.use_point_colors)
+        m.diffuse = float(self.diffuse)
+        m.specular = float(self.specular)
+        m.shininess = float(self.shininess)
+        m.mirror = float(self.mirror)
+        m.roughness = float(self.roughness)
+        if self.checker is not None and self.checker_size > 0:
+            m.checker = _rgb(self.checker, "material.checker")
+            m.checker_size = float(self.checker_size)
+        return m
+
+
+#: Ground presets by name (the CLI's ``--ground``).
+GROUND_MATERIALS = {
+    "matte": Material(color=(0.75, 0.75, 0.73), specular=0.02, use_point_colors=False),
+    "mirror": Material(color=(0.6, 0.6, 0.62), specular=0.0, mirror=0.6, use_point_colors=False),
+    "glossy": Material(color=(0.7, 0.7, 0.7), specular=0.2, mirror=0.3, roughness=0.05,
+                       use_point_colors=False),
+}
+
+
+@dataclass(frozen=True)
+class DirectionalLight:
+    """Light from far away. ``direction`` points toward the light; ``angle_deg`` is its angular
+    radius (0: hard shadows; the sun is 0.27)."""
+
+    direction: tuple = (0.4, 1.0, 0.6)
+    color: tuple = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+    angle_deg: float = 2.0
+
+    def to_core(self) -> _core.Light:
+        light = _core.Light()
+        light.type = _core.LightType.directional
+        light.direction = tuple(_unit(self.direction, "light.direction"))
+        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
+        light.angle = np.radians(_in_range(self.angle_deg, "light.angle_deg", 0.0, 45.0))
+        return light
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """Light from a point (``radius`` > 0: a spherical light, soft shadows); inverse-square."""
+
+    position: tuple = (0.0, 2.0, 0.0)
+    color: tuple = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+    radius: float = 0.0
+
+    def to_core(self, origin) -> _core.Light:
+        light = _core.Light()
+        light.type = _core.LightType.point
+        light.position = tuple(np.asarray(self.position, dtype=np.float64) - origin)
+        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
+        light.radius = _in_range(self.radius, "light.radius", 0.0, 1e30)
+        return light
+
+
+@dataclass(frozen=True)
+class AreaLight:
+    """A parallelogram light with corner ``corner`` and edges ``edge_u``, ``edge_v``: soft
+    shadows. ``intensity`` is the total, as for a point light at the same place."""
+
+    corner: tuple = (-0.5, 2.0, -0.5)
+    edge_u: tuple = (1.0, 0.0, 0.0)
+    edge_v: tuple = (0.0, 0.0, 1.0)
+    color: tuple = (1.0, 1.0, 1.0)
+    intensity: float = 1.0
+
+    def to_core(self, origin) -> _core.Light:
+        light = _core.Light()
+        light.type = _core.LightType.area
+        light.position = tuple(np.asarray(self.corner, dtype=np.float64) - origin)
+        light.edge_u = tuple(np.asarray(self.edge_u, dtype=np.float64))
+        light.edge_v = tuple(np.asarray(self.edge_v, dtype=np.float64))
+        if not np.linalg.norm(np.cross(light.edge_u, light.edge_v)) > 0:
+            raise InputError("light.edge_u, light.edge_v: must span a parallelogram")
+        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
+        return light
+
+
+def default_lights(camera, up) -> list:
+    """A soft key light over the camera's left shoulder; the sky adds the fill."""
+    up = np.asarray(up, dtype=np.float64)
+    direction = 1.0 * up - 0.55 * np.asarray(camera.forward) - 0.45 * np.asarray(camera.right)
+    return [DirectionalLight(direction=tuple(direction), intensity=1.1, angle_deg=3.0)]
+
+
+@dataclass
+class SceneObject:
+    """One object of a scene: a surfel scene (or a mesh backend) and its material."""
+
+    geometry: object
+    material: Material = field(default_factory=Material)
+
+
+class Scene:
+    """One or more clouds with materials, a ground plane, lights and a sky.
+
+    Parameters
+    ----------
+    clouds : PointCloud, SurfelScene or a list of them
+        What to show; a PointCloud gets a default SurfelScene.
+    lights : list of DirectionalLight/PointLight/AreaLight, optional
+        Default: a soft key light placed relative to the camera at render time.
+    ground : {"auto", "matte", "mirror", "glossy", "none"} or Material or None
+        A plane under the clouds ("auto" is matte).
+    background : "sky" or (3,) float
+        What primary rays that miss show.
+    materials : Material or list of Material, optional
+        One per cloud.
+    up : (3,) float, optional
+        Default: the first cloud's ``up`` hint, else +Y.
+    ambient : float
+        Strength of the sky's ambient light.
+    """
+
+    def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
+                 up=None, ambient: float = 0.3, **scene_options):
+        from .surfels import SurfelScene
+
+        if not isinstance(clouds, (list, tuple)):
+            clouds = [clouds]
+        if len(clouds) == 0:
+            raise InputError("clouds: a scene needs at least one cloud")
+        if materials is None:
+            materials = [Material() for _ in clouds]
+        elif isinstance(materials, Material):
+            materials = [materials for _ in clouds]
+        if len(materials) != len(clouds):
+            raise InputError(f"materials: {len(materials)} given for {len(clouds)} clouds")
+        if up is None:
+            first = clouds[0].cloud if isinstance(clouds[0], SurfelScene) else clouds[0]
+            up = getattr(first, "up", None)
+        self.up = _unit(_Y_UP if up is None else up, "up")
+        self._scene_options = scene_options
+        self.objects: list[SceneObject] = []
+        for c, m in zip(clouds, materials):
+            if not isinstance(m, Material):
+                raise InputError(f"materials: expected Material, got {type(m).__name__}")
+            if not (isinstance(c, SurfelScene) or hasattr(c, "points") or hasattr(c, "intersect")):
+                raise InputError(f"clouds: cannot render a {type(c).__name__}")
+            self.objects.append(SceneObject(c, m))
+        self.lights = None if lights is None else list(lights)
+        if isinstance(ground, str):
+            if ground == "auto":
+                ground = "matte"
+            if ground == "none":
+                ground = None
+            elif ground in GROUND_MATERIALS:
+                ground = GROUND_MATERIALS[ground]
+            else:
+                raise InputError(
+                    f"ground: expected one of auto, none, {', '.join(GROUND_MATERIALS)}, got {ground!r}")
+        if ground is not None and not isinstance(ground, Material):
+            raise InputError(f"ground: expected a name or a Material, got {type(ground).__name__}")
+        self.ground = ground
+        if isinstance(background, str):
+            if background != "sky":
+                raise InputError(f"background: expected 'sky' or an RGB triple, got {background!r}")
+            self.background = None
+        else:
+            self.background = _rgb(background, "background")
+        self.ambient = _in_range(ambient, "ambient", 0.0, 10.0)
+
+    # -- geometry -----------------------------------------------------------------------------
+    def surfel_scene(self, i: int):
+        """The SurfelScene of object i, built on first use (a cloud's tree is built once)."""
+        from .surfels import SurfelScene
+
+        obj = self.objects[i]
+        if not isinstance(obj.geometry, SurfelScene) and hasattr(obj.geometry, "points"):
+            obj.geometry = SurfelScene(obj.geometry, **self._scene_options)
+        return obj.geometry
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of every object (including disk radii)."""
+        los, his = [], []
+        for obj in self.objects:
+            g = obj.geometry
+            cloud = getattr(g, "cloud", g)
+            pts = getattr(cloud, "points", None)
+            if pts is None and hasattr(g, "bounds"):
+                lo, hi = g.bounds()
+            else:
+                pts = np.asarray(pts)
+                r = float(np.max(cloud.radii)) if hasattr(cloud, "radii") else 0.0
+                lo, hi = pts.min(axis=0) - r, pts.max(axis=0) + r
+            los.append(lo)
+            his.append(hi)
+        return np.min(los, axis=0), np.max(his, axis=0)
+
+    @property
+    def points(self) -> np.ndarray:
+        """Corners of the scene's bounds, so that ``Camera.fit(scene)`` frames the scene."""
+        lo, hi = self.bounds()
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                         for z in (lo[2], hi[2])])
+
+    def ground_point(self) -> np.ndarray:
+        """A point of the ground plane: under the lowest point along ``up``."""
+        lo, hi = self.bounds()
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        h = float(np.min(corners @ self.up))
+        center = 0.5 * (lo + hi)
+        return center + (h - center @ self.up) * self.up
+
+    def to_core(self, camera, lod_pixels: float):
+        """The C++ render scene and its local origin (float64): everything is re-centred on it
+        so that georeferenced scans keep float32 precision."""
+        lo, hi = self.bounds()
+        origin = 0.5 * (lo + hi)
+        rs = _core.RenderScene()
+        rs.scale = float(max(np.linalg.norm(hi - lo) * 0.5, 1e-12))
+        for i, obj in enumerate(self.objects):
+            g = obj.geometry
+            if hasattr(g, "intersect") and hasattr(g, "occluded") and not hasattr(g, "points"):
+                g.set_origin(origin)
+                rs.add_callback(g, obj.material.to_core())
+                continue
+            ss = self.surfel_scene(i)
+            offset = tuple(float(v) for v in (origin - ss.origin))
+            rs.add_surfels(ss.tree, ss.trace_options(lod_pixels), offset, obj.material.to_core())
+        if self.ground is not None:
+            rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
+        lights = self.lights if self.lights is not None else default_lights(camera, self.up)
+        for light in lights:
+            if isinstance(light, DirectionalLight):
+                rs.add_light(light.to_core())
+            elif isinstance(light, (PointLight, AreaLight)):
+                rs.add_light(light.to_core(origin))
+            else:
+                raise InputError(f"lights: unknown light type {type(light).__name__}")
+        sky = _core.Sky()
+        sky.up = tuple(self.up)
+        sky.ambient = self.ambient
+        if self.background is not None:
+            sky.background_is_sky = False
+            sky.background = self.background
+        rs.sky = sky
+        return rs, origin
+
+    def with_ground(self, ground) -> Scene:
+        """A shallow copy with another ground (objects and their trees are shared)."""
+        s = Scene.__new__(Scene)
+        s.__dict__.update(self.__dict__)
+        s.objects = [replace(o) for o in self.objects]
+        tmp = Scene([o.geometry for o in self.objects[:1]], ground=ground, up=self.up)
+        s.ground = tmp.ground
+        return s
+
+    def __repr__(self) -> str:
+        return (f"Scene({len(self.objects)} objects, ground={'none' if self.ground is None else 'yes'}, "
+                f"lights={'default' if self.lights is None else len(self.lights)})")
