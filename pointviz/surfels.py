@@ -105,6 +105,9 @@ class SurfelScene:
         Depth window of the interpolation, in radii of the nearest disk.
     leaf_size : int
         Most surfels per leaf (1..255).
+    lod_criterion : {"size", "deviation"}
+        When LoD stops descending: the paper's projected sphere size, or the projected deviation
+        of the node from its mean plane (flat regions stop earlier).
     threads : int, optional
         Worker threads for the build and queries; default all cores. Results never depend on it.
     origin : (3,) float, optional
@@ -115,6 +118,7 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
+                 lod_criterion: str = "size",
                  threads: int | None = None, origin=None):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
@@ -126,6 +130,8 @@ class SurfelScene:
             raise InputError(f"lod_pixels: must be a positive number, got {lod_pixels!r}")
         if not (np.isfinite(window) and window >= 0):
             raise InputError(f"window: must be a non-negative number, got {window!r}")
+        if lod_criterion not in ("size", "deviation"):
+            raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
         if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 255):
             raise InputError(f"leaf_size: must be an integer in 1..255, got {leaf_size!r}")
         self.threads = _check_threads(threads)
@@ -171,6 +177,7 @@ class SurfelScene:
         self._options.lod_pixels = float(lod_pixels)
         self._options.window = float(window)
         self._options.interpolation = getattr(_core.Interpolation, interpolation)
+        self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self.last_stats: dict = {}
 
     # -- properties -------------------------------------------------------------------------
@@ -227,7 +234,8 @@ class SurfelScene:
     def trace_options(self, lod_pixels: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
-        for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window"):
+        for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
+                  "lod_criterion", "lod_max_extent"):
             setattr(o, k, getattr(self._options, k))
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):

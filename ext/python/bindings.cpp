@@ -207,6 +207,10 @@ NB_MODULE(_core, m) {
         .value("paper", Interpolation::Paper)
         .value("smooth", Interpolation::Smooth);
 
+    nb::enum_<LodCriterion>(m, "LodCriterion")
+        .value("size", LodCriterion::Size)
+        .value("deviation", LodCriterion::Deviation);
+
     nb::class_<TraceOptions>(m, "TraceOptions")
         .def(nb::init<>())
         .def_rw("lod", &TraceOptions::lod)
@@ -214,7 +218,9 @@ NB_MODULE(_core, m) {
         .def_rw("cull", &TraceOptions::cull)
         .def_rw("box_depth", &TraceOptions::box_depth)
         .def_rw("interpolation", &TraceOptions::interp)
-        .def_rw("window", &TraceOptions::window);
+        .def_rw("window", &TraceOptions::window)
+        .def_rw("lod_criterion", &TraceOptions::lod_criterion)
+        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())

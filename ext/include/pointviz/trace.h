@@ -19,6 +19,13 @@ enum class Interpolation : uint8_t {
     Smooth = 2,  ///< weights (1 - (|I - p_i| / r_i)^2)^2: full at the centre, zero at the rim
 };
 
+/// When a node is small enough to stop descending (paper section 2.2.1 and its open question).
+enum class LodCriterion : uint8_t {
+    Size = 0,       ///< the paper's: the node's sphere diameter projects below lod_pixels
+    Deviation = 1,  ///< the node's deviation from its mean plane (diameter x sin of the normal
+                    ///< cone's half-angle) projects below lod_pixels: flat nodes stop earlier
+};
+
 /// Knobs of one traversal; the paper's variants are combinations of these.
 struct TraceOptions {
     bool lod = true;          ///< stop at nodes smaller than lod_pixels footprints (needs ray.spread > 0)
@@ -27,7 +34,20 @@ struct TraceOptions {
     uint32_t box_depth = 0;   ///< nodes shallower than this are bounded by boxes, the rest by spheres
     Interpolation interp = Interpolation::Smooth;
     float window = 1.f;       ///< depth window, in radii of the nearest disk, measured along its normal
+    LodCriterion lod_criterion = LodCriterion::Size;
+    float lod_max_extent = 8.f;  ///< Deviation only: never stop at nodes wider than this many footprints
 };
+
+/// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
+inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOptions &opt) {
+    const float size = 2.f * nd.radius, fp = opt.lod_pixels * ray.footprint(t2);
+    if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
+    // A node's disk stands in for a curved patch badly in proportion to its normal spread;
+    // kFlatFloor keeps a perfectly flat node from counting as zero deviation.
+    constexpr float kFlatFloor = 0.05f;
+    const float spread = std::min(1.f, std::max(nd.cone, kFlatFloor));
+    return size * spread <= fp && size <= opt.lod_max_extent * fp;
+}
 
 /// What a closest-hit query returns.
 struct SurfaceHit {
@@ -183,7 +203,7 @@ void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, b
         const uint32_t c0 = nd.index;
         if (lod) {
             float t2 = dot(nd.c - ray.o, ray.d);
-            if (t2 > 0.f && 2.f * nd.radius <= opt.lod_pixels * ray.footprint(t2)) {
+            if (t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
                 // Small enough: intersect the children as disks and let the policy blend them.
                 for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
                     const Node &cn = nodes[ch];

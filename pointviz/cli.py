@@ -1,0 +1,65 @@
+"""The ``pointviz`` command line. Each subcommand lives in ``pointviz/commands/<name>.py`` with
+``add_parser(subparsers)`` and ``run(args) -> int``. Errors print one line and exit non-zero."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import CancelledError, PointvizError
+
+#: Subcommands, in the order ``pointviz --help`` lists them.
+COMMANDS = ("render", "view", "compare", "path", "info")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pointviz", description="Ray trace point clouds as surfels; view, compare, animate.")
+    parser.add_argument("--version", action="version", version=f"pointviz {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f".commands.{name}", __package__)
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.endswith(f"commands.{name}"):
+                continue  # not built yet
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt:
+        print("pointviz: interrupted", file=sys.stderr)
+        return 130
+    except CancelledError as exc:
+        print(f"pointviz: {exc}", file=sys.stderr)
+        return 130
+    except (PointvizError, FileExistsError, FileNotFoundError, PermissionError,
+            IsADirectoryError, MemoryError) as exc:
+        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

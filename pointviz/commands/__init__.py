@@ -1,0 +1,1 @@
+"""Subcommands of the ``pointviz`` CLI; see :mod:`pointviz.cli`."""

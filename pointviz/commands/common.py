@@ -1,0 +1,130 @@
+"""Options shared by the subcommands that render (render, path, view, compare)."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def add_input_options(p) -> None:
+    p.add_argument("input", help="point cloud, mesh, registered scans (.conf), or 'demo'")
+    p.add_argument("--sample", type=int, default=None, metavar="N",
+                   help="for meshes: sample N surface points instead of using the vertices")
+
+
+def add_render_options(p) -> None:
+    g = p.add_argument_group("rendering")
+    g.add_argument("--camera", metavar="CAM.json", help="camera file (from the viewer's Copy camera)")
+    g.add_argument("--width", type=int, default=None, help="image width (default 640)")
+    g.add_argument("--height", type=int, default=None, help="image height (default 480)")
+    g.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees")
+    g.add_argument("--spp", type=int, default=4, help="samples per pixel")
+    g.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
+    g.add_argument("--reflections", type=int, default=1, help="reflection bounces")
+    g.add_argument("--lod", type=float, default=1.0, metavar="PIXELS",
+                   help="level-of-detail threshold in pixels (0: full detail)")
+    g.add_argument("--light", action="append", default=None, metavar="X,Y,Z[,INTENSITY]",
+                   help="directional light toward X,Y,Z (repeatable)")
+    g.add_argument("--ground", choices=["auto", "matte", "mirror", "glossy", "none"],
+                   default="auto", help="ground plane under the cloud")
+    g.add_argument("--interpolation", choices=["smooth", "paper", "none"], default=None,
+                   help="how disks around a hit are blended")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--threads", type=int, default=None)
+
+
+def load_input(args):
+    """The cloud (or built-in demo scene) named on the command line."""
+    if args.input == "demo":
+        from ..shapes import demo_scene
+
+        return demo_scene()
+    from ..io import load
+
+    return load(args.input, sample=args.sample), None
+
+
+def parse_lights(specs):
+    from ..scene import DirectionalLight
+
+    if not specs:
+        return None
+    lights = []
+    for spec in specs:
+        try:
+            vals = [float(v) for v in spec.split(",")]
+        except ValueError:
+            raise InputError(f"--light: expected X,Y,Z[,INTENSITY], got {spec!r}") from None
+        if len(vals) not in (3, 4) or not np.all(np.isfinite(vals)):
+            raise InputError(f"--light: expected X,Y,Z[,INTENSITY], got {spec!r}")
+        if not np.linalg.norm(vals[:3]) > 0:
+            raise InputError(f"--light: direction must not be zero, got {spec!r}")
+        lights.append(DirectionalLight(direction=tuple(vals[:3]),
+                                       intensity=vals[3] if len(vals) == 4 else 1.0))
+    return lights
+
+
+def make_scene_and_camera(args):
+    """Scene and camera from the common options."""
+    from ..camera import Camera
+    from ..scene import Scene
+
+    loaded, demo_camera = load_input(args)
+    lights = parse_lights(args.light)
+    kw = {}
+    if args.interpolation:
+        kw["interpolation"] = args.interpolation
+    if isinstance(loaded, Scene):
+        scene = loaded
+        if lights is not None:
+            scene.lights = lights
+        if args.ground != "auto":
+            scene = scene.with_ground(args.ground)
+    else:
+        scene = Scene([loaded], lights=lights, ground=args.ground, **kw)
+    if args.camera:
+        camera = Camera.from_json(args.camera)
+    elif demo_camera is not None:
+        camera = demo_camera
+    else:
+        camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded, fov_deg=args.fov)
+    if args.width or args.height:
+        w = args.width or int(round(camera.width * (args.height / camera.height)))
+        h = args.height or int(round(camera.height * (args.width / camera.width)))
+        camera = camera.with_size(w, h)
+    return scene, camera
+
+
+def render_kwargs(args) -> dict:
+    return {"shadows": not args.no_shadows, "reflections": args.reflections, "spp": args.spp,
+            "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads}
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (silent when stderr is not a terminal, unless forced)."""
+
+    def __init__(self, label: str, enabled: bool | None = None, width: int = 30):
+        self.label = label
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self.width = width
+        self.start = time.monotonic()
+        self._last = -1
+
+    def __call__(self, done: int, total: int):
+        if not self.enabled or total <= 0:
+            return True
+        pct = int(100 * done / total)
+        if pct == self._last:
+            return True
+        self._last = pct
+        fill = int(self.width * done / total)
+        el = time.monotonic() - self.start
+        sys.stderr.write(f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] {pct:3d}% {el:5.1f}s")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+        return True

@@ -1,0 +1,32 @@
+"""``pointviz render INPUT -o out.png``: one final frame."""
+
+from __future__ import annotations
+
+from .common import ProgressBar, add_input_options, add_render_options, make_scene_and_camera, render_kwargs
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("render", help="ray trace one frame", description=__doc__)
+    add_input_options(p)
+    p.add_argument("-o", "--output", required=True, help="output image (.png or .exr)")
+    add_render_options(p)
+    p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth")
+    p.add_argument("--exposure", type=float, default=1.0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.add_argument("--progress", action="store_true", help="show progress even when not a terminal")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from ..imageio import check_output_path
+    from ..render import render
+
+    check_output_path(args.output, args.overwrite)  # fail before the expensive part
+    scene, camera = make_scene_and_camera(args)
+    bar = ProgressBar("render", enabled=True if args.progress else None)
+    frame = render(scene, camera, progress=bar, **render_kwargs(args))
+    frame.save(args.output, bits=args.bits, exposure=args.exposure, overwrite=args.overwrite)
+    s = frame.stats
+    print(f"{args.output}: {camera.width}x{camera.height}, {s['seconds']:.2f} s, "
+          f"{s['rays_per_second'] / 1e6:.2f} Mrays/s")
+    return 0
