@@ -397,6 +397,81 @@ def estimate_radii(points: np.ndarray, *, k: int = RADIUS_K, factor: float = RAD
     return np.maximum(out, np.finfo(np.float32).tiny)
 
 
+# The coverage radius of a point is the radius of its Voronoi cell in its tangent plane: the
+# farthest point of the surface that is closer to it than to any other sample. Disks of that
+# radius cover the surface exactly (Voronoi cells tile it); a margin adds the overlap that the
+# interpolation blends over and absorbs curvature and the sampled directions' underestimate.
+COVER_K = 10
+# Directions sampled around each point when measuring its Voronoi cell (underestimates the
+# cell's radius by at most 1 - cos(pi / 16), 2%).
+COVER_DIRECTIONS = 16
+# Margin over the Voronoi radius: measured hole-free on Poisson-disk, uniform random, jittered
+# and anisotropic samplings and on the Fibonacci sphere (tests/test_cloud.py).
+COVER_MARGIN = 1.2
+# Cap in units of the COVER_K-th neighbour distance: an open boundary has no bisector on its
+# outer side, and a near-tangent one would put the cell's far end at a huge distance.
+COVER_CAP = 1.0
+
+
+def coverage_radii(points: np.ndarray, normals: np.ndarray, *, k: int = COVER_K,
+                   margin: float = COVER_MARGIN, cap: float = COVER_CAP, tree=None) -> np.ndarray:
+    """Per-point radii just large enough to cover the surface: margin x the Voronoi-cell radius.
+
+    For each point, its ``k`` nearest neighbours are projected on its tangent plane; along each
+    of COVER_DIRECTIONS directions the cell ends at the nearest perpendicular bisector. The
+    cell's radius is the largest such distance over the directions that have a bisector
+    (directions without one face an open boundary, which needs no cover beyond the samples).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float unit normals
+
+    Returns
+    -------
+    radii : (n,) float32, positive
+    """
+    n = len(points)
+    if n < 2:
+        raise InputError("radii: cannot be estimated from a single point; pass radii")
+    k = min(k, n - 1)
+    dist, idx = _knn(points, k, tree)
+    ang = np.linspace(0.0, 2 * np.pi, COVER_DIRECTIONS, endpoint=False)
+    out = np.empty(n, np.float32)
+    block = 16384
+    for b0 in range(0, n, block):
+        b1 = min(n, b0 + block)
+        nn = np.asarray(normals[b0:b1], dtype=np.float64)
+        q = points[idx[b0:b1]] - points[b0:b1, None, :]             # (m, k, 3)
+        # tangent basis (t1, t2) per point
+        helper = np.where(np.abs(nn[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        t1 = np.cross(nn, helper)
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+        t2 = np.cross(nn, t1)
+        x = np.einsum("mkj,mj->mk", q, t1).astype(np.float32)
+        y = np.einsum("mkj,mj->mk", q, t2).astype(np.float32)
+        r2 = x * x + y * y                                           # (m, k)
+        proj = x[:, :, None] * np.cos(ang, dtype=np.float32) + y[:, :, None] * np.sin(ang, dtype=np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(proj > 1e-12 * np.sqrt(r2[:, :, None]) + 0.0, r2[:, :, None] / (2 * proj), np.inf)
+        s[~(r2[:, :, None] > 0) | np.isnan(s)] = np.inf
+        edge = s.min(axis=1)                                         # (m, D)
+        finite = np.isfinite(edge)
+        cell = np.where(finite, edge, 0.0).max(axis=1)
+        dk = dist[b0:b1, -1]
+        r = np.minimum(margin * cell, cap * dk)
+        # isolated or degenerate (no bisector anywhere): half the nearest-neighbour distance
+        fallback = ~(r > 0)
+        if fallback.any():
+            d1 = dist[b0:b1, 0]
+            r[fallback] = np.maximum(0.5 * d1[fallback], cap * dk[fallback])
+        out[b0:b1] = r
+    bad = ~(out > 0)
+    if bad.any():  # stacks of duplicates: the spacing-based estimate knows how to handle them
+        out[bad] = estimate_radii(points)[bad]
+    return out
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals of a triangle mesh (follows the face winding).
 
@@ -544,7 +619,10 @@ class PointCloud:
     def radii(self) -> np.ndarray:
         """(n,) float32 disk radii > 0; estimated (and cached) on first access if not given."""
         if self._radii is None:
-            est = estimate_radii(self._points)
+            if len(self._points) < 2 or not np.ptp(self._points, axis=0).any():
+                est = estimate_radii(self._points)  # raises the specific error
+            else:
+                est = coverage_radii(self._points, self.normals)
             est.setflags(write=False)
             self._radii = est
         return self._radii
