@@ -1,0 +1,85 @@
+"""``pointviz path INPUT PATH.json -o FRAMES_DIR``: render a camera path to frames (and a video).
+
+PATH.json is a camera path file (``CameraPath.save``, the viewer's keyframes) or the word
+``orbit`` for one revolution around the input lasting ``--orbit`` seconds. Frames go to
+FRAMES_DIR/frame_00000.png ...; an interrupted run resumes when run again with the same
+arguments. Frames are rendered on a local Dask cluster of ``--workers`` processes by default,
+on an existing cluster with ``--scheduler tcp://HOST:PORT``, or in this process with
+``--scheduler serial``.
+"""
+
+from __future__ import annotations
+
+from .common import ProgressBar, add_input_options, add_render_options, make_scene_and_camera, render_kwargs
+
+#: PATH.json value that asks for an orbit instead of a file.
+ORBIT = "orbit"
+DEFAULT_ORBIT_SECONDS = 8.0
+#: ``--scheduler`` value that renders in this process.
+SERIAL = "serial"
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("path", help="render a camera path to frames and video", description=__doc__)
+    add_input_options(p)
+    p.add_argument("path", metavar="PATH.json", help=f"camera path file, or '{ORBIT}'")
+    p.add_argument("-o", "--output", required=True, metavar="FRAMES_DIR",
+                   help="folder for frame_00000.png ... (created if missing)")
+    add_render_options(p)
+    p.add_argument("--video", metavar="OUT.mp4|OUT.gif", help="also encode the frames as a video")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second of an orbit and of the video (default: the path's, 30)")
+    p.add_argument("--orbit", type=float, default=DEFAULT_ORBIT_SECONDS, metavar="SECONDS",
+                   help=f"duration of the orbit when PATH.json is '{ORBIT}'")
+    p.add_argument("--scheduler", default="local", metavar="ADDRESS",
+                   help=f"'local' (a LocalCluster, the default), '{SERIAL}' (this process) or "
+                        "tcp://HOST:PORT of an existing Dask scheduler")
+    p.add_argument("--workers", type=int, default=2, help="processes of the local cluster")
+    p.add_argument("--retries", type=int, default=3, help="re-runs of a failed frame task")
+    p.add_argument("--no-resume", action="store_true",
+                   help="re-render frames already in FRAMES_DIR (needs --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="delete frames of a different render in FRAMES_DIR; replace the video")
+    p.add_argument("--progress", action="store_true", help="show progress even when not a terminal")
+    p.set_defaults(run=run)
+
+
+def _camera_path(args, scene):
+    from ..errors import InputError
+    from ..path import DEFAULT_FPS, CameraPath
+
+    if args.path == ORBIT:
+        if not args.orbit > 0:
+            raise InputError(f"--orbit: expected seconds > 0, got {args.orbit}")
+        return CameraPath.orbit(scene, seconds=args.orbit, fps=args.fps or DEFAULT_FPS,
+                                width=args.width or 640, height=args.height or 480,
+                                fov_deg=args.fov)
+    return CameraPath.load(args.path)
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..path import render_path
+
+    if args.workers < 1:
+        raise InputError(f"--workers: expected at least 1, got {args.workers}")
+    if args.camera:
+        raise InputError("--camera: a path command takes its cameras from PATH.json")
+    scene, _ = make_scene_and_camera(args)
+    path = _camera_path(args, scene)
+    scheduler = None if args.scheduler == SERIAL else args.scheduler
+    summary = render_path(
+        scene, path, args.output, width=args.width, height=args.height, video=args.video,
+        fps=args.fps, scheduler=scheduler, workers=args.workers, retries=args.retries,
+        resume=not args.no_resume, overwrite=args.overwrite,
+        progress=ProgressBar("path", enabled=True if args.progress else None),
+        **render_kwargs(args))
+    where = "this process" if summary["scheduler"] == "serial" else (
+        f"{summary['workers']} workers at {summary['scheduler']}")
+    print(f"{args.output}: {summary['frames']} frames ({summary['rendered']} rendered, "
+          f"{summary['skipped']} already there) in {summary['seconds']:.1f} s on {where}"
+          + (f", {summary['fps']:.2f} frames/s" if summary["rendered"] else ""))
+    if summary["video"]:
+        print(f"{summary['video']}: {summary['frames']} frames at "
+              f"{args.fps or path.fps:g} fps")
+    return 0
