@@ -1,0 +1,224 @@
+"""Tests of pointviz.render_path (serial): atomic frames, resume, manifest, cancel, video, CLI.
+
+The oracle for every frame is an independent ``pointviz.render`` of the same camera (renders are
+deterministic per seed), encoded the same way; the oracle for videos is imageio's decoder.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pytest
+
+from pointviz import render
+from pointviz.cli import main
+from pointviz.errors import CancelledError, FileFormatError, InputError
+from pointviz.imageio import encode_png
+from pointviz.path import MANIFEST_NAME, CameraPath, is_complete_png, render_path
+from pointviz.scene import Scene
+from pointviz.shapes import sphere, torus
+
+#: Small frames and one sample per pixel keep a whole path well under a second.
+W, H = 64, 48
+SETTINGS = {"spp": 1, "reflections": 0, "threads": 1}
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Two analytic objects, so that the orbit shows parallax."""
+    return Scene([sphere(3000, 0.6, (-0.5, 0.6, 0.0), color=(0.8, 0.3, 0.2)),
+                  torus(4000, 0.5, 0.2, (0.6, 0.2, 0.2), color=(0.9, 0.8, 0.3))], up=(0, 1, 0))
+
+
+@pytest.fixture(scope="module")
+def path(scene):
+    return CameraPath.orbit(scene, seconds=1.0, fps=6, width=W, height=H)  # 7 frames
+
+
+def frame_files(folder):
+    return sorted(p for p in folder.iterdir() if p.name.startswith("frame_"))
+
+
+def leftovers(folder):
+    """Temporary files of interrupted atomic writes."""
+    return [p for p in folder.iterdir() if p.name.startswith(".")]
+
+
+def test_render_path_writes_every_frame_as_the_single_frame_render(scene, path, tmp_path):
+    out = tmp_path / "frames"
+    summary = render_path(scene, path, out, progress=False, **SETTINGS)
+    files = frame_files(out)
+    assert [f.name for f in files] == [f"frame_{i:05d}.png" for i in range(path.n_frames)]
+    assert summary["rendered"] == path.n_frames and summary["skipped"] == 0
+    for f, cam in zip(files, path.cameras()):
+        oracle = encode_png(render(scene, cam, **SETTINGS).to_srgb8())
+        assert f.read_bytes() == oracle
+    assert (out / MANIFEST_NAME).is_file()
+    assert not leftovers(out)
+
+
+def test_render_path_size_override_keeps_aspect(scene, path, tmp_path):
+    render_path(scene, path, tmp_path, width=32, progress=False, **SETTINGS)
+    assert all(is_complete_png(f, 32, 24) for f in frame_files(tmp_path))
+
+
+def test_resume_renders_only_missing_frames(scene, path, tmp_path):
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    files = frame_files(tmp_path)
+    before = {f.name: (f.stat().st_mtime_ns, f.read_bytes()) for f in files}
+    missing = [files[1], files[4]]
+    for f in missing:
+        f.unlink()
+    files[5].write_bytes(files[5].read_bytes()[:100])  # truncated by hand: not a whole PNG
+    calls = []
+    summary = render_path(scene, path, tmp_path, progress=lambda d, t: calls.append((d, t)),
+                          **SETTINGS)
+    assert summary["rendered"] == 3 and summary["skipped"] == path.n_frames - 3
+    assert calls[0] == (path.n_frames - 3, path.n_frames) and calls[-1][0] == path.n_frames
+    redone = {f.name for f in missing} | {files[5].name}
+    for f in frame_files(tmp_path):
+        mtime, data = before[f.name]
+        assert f.read_bytes() == data  # deterministic: the re-rendered frames are the same
+        if f.name not in redone:
+            assert f.stat().st_mtime_ns == mtime  # untouched
+
+
+def test_resume_refuses_other_settings_unless_overwrite(scene, path, tmp_path):
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    with pytest.raises(InputError, match="render settings changed"):
+        render_path(scene, path, tmp_path, progress=False, **{**SETTINGS, "spp": 2})
+    other = CameraPath.orbit(scene, seconds=1.0, fps=6, width=W, height=H, elevation_deg=40)
+    with pytest.raises(InputError, match="camera path"):
+        render_path(scene, other, tmp_path, progress=False, **SETTINGS)
+    moved = Scene([sphere(3000, 0.6, (-0.4, 0.6, 0.0))], up=(0, 1, 0))
+    with pytest.raises(InputError, match="the scene changed"):
+        render_path(moved, path, tmp_path, progress=False, **SETTINGS)
+    summary = render_path(scene, path, tmp_path, progress=False, overwrite=True,
+                          **{**SETTINGS, "spp": 2})
+    assert summary["rendered"] == path.n_frames
+
+
+def test_refuses_folder_with_foreign_frames(scene, path, tmp_path):
+    (tmp_path / "frame_00000.png").write_bytes(b"somebody's file")
+    with pytest.raises(InputError, match="no pointviz_path.json"):
+        render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    assert (tmp_path / "frame_00000.png").read_bytes() == b"somebody's file"
+
+
+def test_no_resume_needs_overwrite(scene, path, tmp_path):
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    with pytest.raises(InputError, match="resume=False"):
+        render_path(scene, path, tmp_path, progress=False, resume=False, **SETTINGS)
+    s = render_path(scene, path, tmp_path, progress=False, resume=False, overwrite=True, **SETTINGS)
+    assert s["rendered"] == path.n_frames
+
+
+def test_cancel_from_progress_keeps_finished_frames_and_resumes(scene, path, tmp_path):
+    stop_after = 3
+    with pytest.raises(CancelledError):
+        render_path(scene, path, tmp_path, progress=lambda d, t: d < stop_after, **SETTINGS)
+    assert len(frame_files(tmp_path)) == stop_after
+    assert all(is_complete_png(f, W, H) for f in frame_files(tmp_path))
+    assert not leftovers(tmp_path)
+    summary = render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    assert summary["skipped"] == stop_after
+
+
+def test_cancel_event_mid_frame_leaves_no_partial_file(scene, path, tmp_path):
+    event = threading.Event()
+    polls = []
+
+    def cancel():  # set after the first frame's tiles were polled a few times
+        polls.append(1)
+        if len(polls) > 2:
+            event.set()
+        return event.is_set()
+
+    with pytest.raises(CancelledError):
+        render_path(scene, path, tmp_path, progress=False, cancel=cancel, **SETTINGS)
+    assert all(is_complete_png(f, W, H) for f in frame_files(tmp_path))
+    assert not leftovers(tmp_path)
+
+
+def test_interrupted_write_leaves_no_part_file(scene, path, tmp_path, monkeypatch):
+    real_fsync = os.fsync
+    writes = []
+
+    def fsync_then_interrupt(fd):
+        writes.append(fd)
+        if len(writes) == 4:  # manifest, frames 0 and 1, then frame 2's write is interrupted
+            raise KeyboardInterrupt
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    monkeypatch.setattr(os, "fsync", real_fsync)
+    assert [f.name for f in frame_files(tmp_path)] == ["frame_00000.png", "frame_00001.png"]
+    assert not leftovers(tmp_path)
+
+
+def test_stale_part_files_are_removed_on_resume(scene, path, tmp_path):
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    (tmp_path / ".frame_00002.png.abc123.part").write_bytes(b"half")  # a kill -9 mid-write
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    assert not leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("ext", [".mp4", ".gif"])
+def test_video_decodes_to_every_frame(scene, path, tmp_path, ext):
+    iio = pytest.importorskip("imageio.v3")
+    pytest.importorskip("imageio_ffmpeg")
+    odd = (W - 1, H - 1)  # MP4 pads odd sizes to even
+    video = tmp_path / f"orbit{ext}"
+    render_path(scene, path, tmp_path / "f", width=odd[0], height=odd[1], video=video,
+                progress=False, **SETTINGS)
+    plugin = "FFMPEG" if ext == ".mp4" else "pillow"
+    frames = list(iio.imiter(video, plugin=plugin))
+    assert len(frames) == path.n_frames
+    expect = (H, W) if ext == ".mp4" else (odd[1], odd[0])
+    assert frames[0].shape[:2] == expect
+    # the decoded first frame resembles the PNG (lossy codecs: compare means loosely)
+    png = iio.imread(tmp_path / "f" / "frame_00000.png")[:, :, :3].astype(float)
+    assert abs(frames[0][: odd[1], : odd[0], :3].astype(float).mean() - png.mean()) < 8.0
+    with pytest.raises(FileExistsError):
+        render_path(scene, path, tmp_path / "f", width=odd[0], height=odd[1], video=video,
+                    progress=False, **SETTINGS)
+
+
+def test_bad_arguments_are_named(scene, path, tmp_path):
+    with pytest.raises(InputError, match="video"):
+        render_path(scene, path, tmp_path, video=tmp_path / "x.avi", progress=False)
+    with pytest.raises(InputError, match="path: expected a CameraPath"):
+        render_path(scene, [1, 2, 3], tmp_path, progress=False)
+    with pytest.raises(FileFormatError, match="missing.json"):
+        render_path(scene, tmp_path / "missing.json", tmp_path, progress=False)
+    with pytest.raises(InputError, match="unknown render option"):
+        render_path(scene, path, tmp_path, progress=False, sppp=2)
+    with pytest.raises(InputError, match="scheduler"):
+        render_path(scene, path, tmp_path, progress=False, scheduler="nowhere:1", **SETTINGS)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="is a file"):
+        render_path(scene, path, tmp_path / "file", progress=False)
+
+
+def test_cli_orbit_and_path_file(scene, path, tmp_path, capsys):
+    args = ["--width", str(W), "--height", str(H), "--spp", "1", "--reflections", "0",
+            "--threads", "1", "--scheduler", "serial"]
+    assert main(["path", "demo", "orbit", "-o", str(tmp_path / "o"), "--orbit", "0.5",
+                 "--fps", "4", *args]) == 0
+    assert len(frame_files(tmp_path / "o")) == 3
+    saved = path.save(tmp_path / "p.json")
+    assert main(["path", "demo", str(saved), "-o", str(tmp_path / "p"), *args]) == 0
+    assert len(frame_files(tmp_path / "p")) == path.n_frames
+    # same command again: everything is skipped; other settings: refused with exit code 2
+    assert main(["path", "demo", str(saved), "-o", str(tmp_path / "p"), *args]) == 0
+    assert "0 rendered" in capsys.readouterr().out
+    assert main(["path", "demo", str(saved), "-o", str(tmp_path / "p"), *args, "--spp", "2"]) == 2
+    assert "render settings changed" in capsys.readouterr().err
+    assert main(["path", "demo", str(tmp_path / "missing.json"), "-o", str(tmp_path / "m"),
+                 *args]) == 2
+    assert main(["path", "demo", "orbit", "-o", str(tmp_path / "m"), "--orbit", "0", *args]) == 2
+    assert np.all([is_complete_png(f, W, H) for f in frame_files(tmp_path / "p")])
