@@ -1,0 +1,519 @@
+// pointviz — tests of the C++ core on its own (no Python), run under ASan + UBSan by
+// `make sanitize`. Every accelerated query is checked against a brute-force oracle over all
+// surfels in double precision; edge cases (one surfel, duplicates, a line, a plane, huge and tiny
+// coordinates, rays parallel to disks, NaN directions) must give correct answers or clean misses.
+//
+// Random cases are seeded by their index; a failure prints the case name and index to replay it.
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <memory>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "pointviz/cast.h"
+#include "pointviz/geometry.h"
+#include "pointviz/render.h"
+#include "pointviz/tree.h"
+
+using namespace pointviz;
+
+namespace {
+
+int g_checks = 0, g_failures = 0;
+
+#define CHECK(cond, ...)                                                        \
+    do {                                                                        \
+        ++g_checks;                                                             \
+        if (!(cond)) {                                                          \
+            ++g_failures;                                                       \
+            std::fprintf(stderr, "FAIL %s:%d: %s: ", __FILE__, __LINE__, #cond); \
+            std::fprintf(stderr, __VA_ARGS__);                                  \
+            std::fprintf(stderr, "\n");                                         \
+        }                                                                       \
+    } while (0)
+
+/// A cloud in world coordinates (double positions, as the Python layer hands them over).
+struct Cloud {
+    std::vector<double> p;   // (n, 3)
+    std::vector<float> n;    // (n, 3) unit
+    std::vector<float> r;    // (n,)
+    std::vector<float> c;    // (n, 3)
+    size_t size() const { return r.size(); }
+    void add(double x, double y, double z, float nx, float ny, float nz, float rad) {
+        p.insert(p.end(), {x, y, z});
+        float l = std::sqrt(nx * nx + ny * ny + nz * nz);
+        if (l > 0.f) { nx /= l; ny /= l; nz /= l; }
+        n.insert(n.end(), {nx, ny, nz});
+        r.push_back(rad);
+        c.insert(c.end(), {0.5f, 0.25f, 1.f});
+    }
+};
+
+/// The tree, built around the cloud's bounding-box centre like SurfelScene does.
+std::unique_ptr<SurfelTree> build(const Cloud &cl, uint32_t leaf = 8, uint32_t box_depth = 0,
+                                  int threads = 2) {
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+        lo[k] = std::numeric_limits<double>::infinity();
+        hi[k] = -lo[k];
+    }
+    for (size_t i = 0; i < cl.size(); ++i)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], cl.p[3 * i + k]);
+            hi[k] = std::max(hi[k], cl.p[3 * i + k]);
+        }
+    double origin[3] = {0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
+    SurfelArrays a;
+    a.points = cl.p.data();
+    a.normals = cl.n.data();
+    a.radii = cl.r.data();
+    a.colors = cl.c.data();
+    a.n = cl.size();
+    BuildOptions bo;
+    bo.leaf_size = leaf;
+    bo.box_depth = box_depth;
+    bo.threads = threads;
+    return std::make_unique<SurfelTree>(a, origin, bo);
+}
+
+/// Exact options: nearest disk only, no LoD, no culling (what the brute force computes).
+TraceOptions exact_options(uint32_t box_depth) {
+    TraceOptions o;
+    o.lod = false;
+    o.cull = false;
+    o.interp = Interpolation::None;
+    o.box_depth = box_depth;
+    return o;
+}
+
+/// Brute-force nearest disk in double precision. A disk counts as "certain" when the hit lies
+/// well inside its rim and "possible" when within a rim tolerance: float32 rounding may decide
+/// either way near a rim, so the tree must agree with the certain hit or find a possible one.
+struct Oracle {
+    double t_certain = INFINITY, t_possible = INFINITY;
+};
+
+Oracle brute(const Cloud &cl, const double *ray, double tmax = INFINITY) {
+    const double kRim = 1e-3;   // relative rim band where float rounding may go either way
+    const double kPar = 1e-4;   // |cos| below which a hit is numerically unstable
+    Oracle o;
+    double dl = std::sqrt(ray[3] * ray[3] + ray[4] * ray[4] + ray[5] * ray[5]);
+    double d[3] = {ray[3] / dl, ray[4] / dl, ray[5] / dl};
+    for (size_t i = 0; i < cl.size(); ++i) {
+        const double *p = &cl.p[3 * i];
+        double nn[3] = {cl.n[3 * i], cl.n[3 * i + 1], cl.n[3 * i + 2]};
+        double facing = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2];
+        if (std::fabs(facing) < 1e-6) continue;
+        double t = ((p[0] - ray[0]) * nn[0] + (p[1] - ray[1]) * nn[1] + (p[2] - ray[2]) * nn[2]) / facing;
+        if (t < 0 || t > tmax) continue;
+        double q2 = 0;
+        for (int k = 0; k < 3; ++k) {
+            double q = ray[k] + d[k] * t - p[k];
+            q2 += q * q;
+        }
+        double u2 = q2 / (double(cl.r[i]) * cl.r[i]);
+        bool stable = std::fabs(facing) > kPar;
+        if (u2 <= 1.0 - kRim && stable) o.t_certain = std::min(o.t_certain, t / dl);
+        if (u2 <= 1.0 + kRim) o.t_possible = std::min(o.t_possible, t / dl);
+    }
+    return o;
+}
+
+/// Casts `rays` with the exact options and compares with the brute force. `tol` is the allowed
+/// error on t, in units of the ray direction.
+void check_against_brute(const char *name, const Cloud &cl, const SurfelTree &tree,
+                         const std::vector<double> &rays, uint32_t box_depth, double tol) {
+    const size_t n = rays.size() / 6;
+    std::vector<float> t(n), nrm(3 * n), col(3 * n), rad(n);
+    std::vector<int32_t> idx(n);
+    std::vector<uint8_t> cnt(n), occ(n);
+    CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
+    BatchStats st;
+    cast_rays(tree, rays.data(), n, exact_options(box_depth), 0.f, 2, out, &st);
+    CHECK(st.rays == n, "%s: stats counted %zu rays of %zu", name, size_t(st.rays), n);
+    std::vector<float> tmax(n, 1e30f);
+    occluded(tree, rays.data(), tmax.data(), n, exact_options(box_depth), 0.f, 0.f, 2, occ.data(),
+             nullptr);
+    for (size_t i = 0; i < n; ++i) {
+        Oracle o = brute(cl, &rays[6 * i]);
+        const double ti = t[i];
+        CHECK(!std::isnan(ti) && ti >= 0.0, "%s[%zu]: t = %g", name, i, ti);
+        if (std::isinf(ti)) {
+            CHECK(std::isinf(o.t_certain), "%s[%zu]: tree missed, brute force hits at %.9g", name, i,
+                  o.t_certain);
+            CHECK(idx[i] == -1, "%s[%zu]: miss with index %d", name, i, idx[i]);
+            continue;
+        }
+        CHECK(idx[i] >= 0 && size_t(idx[i]) < cl.size(), "%s[%zu]: index %d", name, i, idx[i]);
+        CHECK(ti >= o.t_possible - tol && ti <= o.t_certain + tol,
+              "%s[%zu]: t %.9g outside brute force [%.9g, %.9g]", name, i, ti, o.t_possible,
+              o.t_certain);
+        float nl = std::sqrt(nrm[3 * i] * nrm[3 * i] + nrm[3 * i + 1] * nrm[3 * i + 1] +
+                             nrm[3 * i + 2] * nrm[3 * i + 2]);
+        CHECK(std::fabs(nl - 1.f) < 1e-3f, "%s[%zu]: |normal| = %g", name, i, nl);
+        CHECK(rad[i] > 0.f && cnt[i] == 1, "%s[%zu]: radius %g count %d", name, i, rad[i], cnt[i]);
+        for (int k = 0; k < 3; ++k) CHECK(col[3 * i + k] >= 0.f && col[3 * i + k] <= 1.f,
+                                          "%s[%zu]: colour %g", name, i, col[3 * i + k]);
+    }
+    for (size_t i = 0; i < n; ++i) {
+        Oracle o = brute(cl, &rays[6 * i], 1e30);
+        if (std::isfinite(o.t_certain)) CHECK(occ[i], "%s[%zu]: occluded() missed a hit", name, i);
+        if (std::isinf(o.t_possible)) CHECK(!occ[i], "%s[%zu]: occluded() found a phantom", name, i);
+    }
+}
+
+/// Rays from random points on a sphere of radius `far` around `c` toward random points within
+/// `spread` of `c`.
+std::vector<double> random_rays(std::mt19937_64 &g, size_t n, const double c[3], double far,
+                                double spread) {
+    std::normal_distribution<double> N(0.0, 1.0);
+    std::uniform_real_distribution<double> U(-1.0, 1.0);
+    std::vector<double> rays;
+    for (size_t i = 0; i < n; ++i) {
+        double v[3] = {N(g), N(g), N(g)};
+        double l = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        double o[3], tg[3];
+        for (int k = 0; k < 3; ++k) {
+            o[k] = c[k] + far * v[k] / l;
+            tg[k] = c[k] + spread * U(g);
+        }
+        rays.insert(rays.end(), {o[0], o[1], o[2], tg[0] - o[0], tg[1] - o[1], tg[2] - o[2]});
+    }
+    return rays;
+}
+
+Cloud random_sphere_cloud(std::mt19937_64 &g, size_t n, double scale, const double off[3]) {
+    std::normal_distribution<double> N(0.0, 1.0);
+    std::uniform_real_distribution<float> U(0.05f, 0.3f);
+    Cloud cl;
+    for (size_t i = 0; i < n; ++i) {
+        double v[3] = {N(g), N(g), N(g)};
+        double l = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        // random normals, not the sphere's: disks at every orientation
+        float nx = float(N(g)), ny = float(N(g)), nz = float(N(g));
+        cl.add(off[0] + scale * v[0] / l, off[1] + scale * v[1] / l, off[2] + scale * v[2] / l, nx,
+               ny, nz, float(scale) * U(g));
+    }
+    return cl;
+}
+
+// ------------------------------------------------------------------------------------------
+
+void test_random_clouds_match_brute_force() {
+    const double zero[3] = {0, 0, 0};
+    const uint32_t leaves[] = {1, 8, 255};
+    const uint32_t boxes[] = {0, 3, 255};
+    for (int seed = 0; seed < 6; ++seed) {
+        std::mt19937_64 g(1000 + seed);
+        size_t n = seed < 3 ? 300 : 2000;
+        Cloud cl = random_sphere_cloud(g, n, 1.0, zero);
+        for (uint32_t leaf : leaves)
+            for (uint32_t bd : boxes) {
+                auto tree = build(cl, leaf, bd);
+                CHECK(tree->surfels().size() == n, "seed %d: %zu surfels", seed, tree->surfels().size());
+                auto rays = random_rays(g, 300, zero, 4.0, 1.2);
+                std::string name = "random seed " + std::to_string(seed) + " leaf " +
+                                   std::to_string(leaf) + " box " + std::to_string(bd);
+                check_against_brute(name.c_str(), cl, *tree, rays, bd, 1e-4);
+            }
+    }
+}
+
+void test_one_surfel() {
+    Cloud cl;
+    cl.add(1.0, 2.0, 3.0, 0, 0, 1, 0.5f);
+    auto tree = build(cl, 8, 255);
+    CHECK(tree->nodes().size() == 1 && tree->depth() == 1, "one surfel: %zu nodes, depth %u",
+          tree->nodes().size(), tree->depth());
+    std::vector<double> rays = {
+        1.0, 2.0, 10.0, 0, 0, -1,     // through the centre, from the front
+        1.0, 2.0, -10.0, 0, 0, 2,     // from the back, direction of length 2
+        1.49, 2.0, 10.0, 0, 0, -1,    // just inside the rim
+        1.51, 2.0, 10.0, 0, 0, -1,    // just outside the rim
+        -5.0, 2.0, 3.0, 1, 0, 0,      // in the disk's plane: parallel, must miss
+        -5.0, 2.0, 3.0001, 1, 0, 0,   // parallel just above
+        1.0, 2.0, 3.0, 0, 0, 1,       // starting on the disk
+    };
+    check_against_brute("one surfel", cl, *tree, rays, 255, 1e-5);
+    std::vector<float> t(7);
+    CastOutput out;
+    out.t = t.data();
+    cast_rays(*tree, rays.data(), 7, exact_options(255), 0.f, 1, out, nullptr);
+    CHECK(std::fabs(t[0] - 7.f) < 1e-5f, "front hit t = %g", t[0]);
+    CHECK(std::fabs(t[1] - 6.5f) < 1e-5f, "back hit t = %g (direction length 2)", t[1]);
+    CHECK(std::isinf(t[3]) && std::isinf(t[4]) && std::isinf(t[5]), "misses: %g %g %g", t[3], t[4], t[5]);
+}
+
+void test_duplicates() {
+    Cloud cl;
+    for (int i = 0; i < 2000; ++i) cl.add(0.5, 0.5, 0.5, 0, 1, 0, 0.25f);
+    for (uint32_t leaf : {1u, 8u}) {
+        auto tree = build(cl, leaf, 4);
+        // The median split keeps the depth logarithmic even when every centre coincides.
+        CHECK(tree->depth() <= 14, "duplicates leaf %u: depth %u", leaf, tree->depth());
+        std::mt19937_64 g(7);
+        const double c[3] = {0.5, 0.5, 0.5};
+        auto rays = random_rays(g, 200, c, 3.0, 0.3);
+        check_against_brute("duplicates", cl, *tree, rays, 4, 1e-5);
+    }
+}
+
+void test_line_and_plane() {
+    Cloud line;
+    for (int i = 0; i < 1000; ++i) line.add(0.01 * i, 0.0, 0.0, 0, 0, 1, 0.008f);
+    auto lt = build(line, 8, 3);
+    std::mt19937_64 g(11);
+    const double lc[3] = {5.0, 0.0, 0.0};
+    auto rays = random_rays(g, 400, lc, 8.0, 5.0);
+    check_against_brute("line", line, *lt, rays, 3, 1e-4);
+
+    Cloud plane;
+    for (int i = 0; i < 60; ++i)
+        for (int j = 0; j < 60; ++j) plane.add(0.1 * i, 0.1 * j, 2.0, 0, 0, 1, 0.075f);
+    auto pt = build(plane, 8, 255);
+    const double pc[3] = {3.0, 3.0, 2.0};
+    rays = random_rays(g, 400, pc, 6.0, 3.0);
+    check_against_brute("plane", plane, *pt, rays, 255, 1e-4);
+    // Grazing and parallel rays over the plane: no NaN, and parallel rays in the plane miss.
+    std::vector<double> graze;
+    for (int k = 0; k < 100; ++k) {
+        double e = std::pow(10.0, -double(k % 10));   // elevation from 1 down to 1e-9
+        graze.insert(graze.end(), {-1.0, 3.0 + 0.01 * k, 2.0 + e, 1.0, 0.0, -e * 0.1});
+    }
+    graze.insert(graze.end(), {-1.0, 3.0, 2.0, 1.0, 0.0, 0.0});  // exactly in the plane
+    check_against_brute("grazing", plane, *pt, graze, 255, 1e-3);
+}
+
+void test_offset_precision() {
+    // Georeferenced coordinates: 1e7 from the world origin. The tree works relative to the
+    // cloud's centre, so hits keep sub-millimetre accuracy on a unit-sized object.
+    const double off[3] = {1.0e7, -2.0e7, 3.0e7};
+    std::mt19937_64 g(21);
+    Cloud cl = random_sphere_cloud(g, 1500, 1.0, off);
+    auto tree = build(cl, 8, 255);
+    auto rays = random_rays(g, 400, off, 4.0, 1.0);
+    check_against_brute("offset 1e7", cl, *tree, rays, 255, 1e-4);
+}
+
+void test_scales() {
+    const double zero[3] = {0, 0, 0};
+    // Large and small, yet within float32's comfortable range (squares stay finite and normal).
+    for (double scale : {1e-12, 1e-6, 1e6, 1e15}) {
+        std::mt19937_64 g(31);
+        Cloud cl = random_sphere_cloud(g, 800, scale, zero);
+        auto tree = build(cl, 8, 3);
+        auto rays = random_rays(g, 300, zero, 4.0 * scale, 1.2 * scale);
+        std::string name = "scale " + std::to_string(scale);
+        // t is in units of the ray direction (length ~ 4 x scale): the tolerance is relative.
+        check_against_brute(name.c_str(), cl, *tree, rays, 3, 1e-5);
+    }
+    // Extreme scales: answers may be wrong (squares under- or overflow float32) but must be
+    // clean: no NaN, t >= 0 or inf, valid indices, and no sanitizer report.
+    for (double scale : {1e-30, 1e25, 1e300}) {
+        std::mt19937_64 g(41);
+        Cloud cl = random_sphere_cloud(g, 300, scale, zero);
+        auto tree = build(cl, 8, 3);
+        auto rays = random_rays(g, 200, zero, 4.0 * scale, 1.2 * scale);
+        const size_t n = rays.size() / 6;
+        std::vector<float> t(n);
+        std::vector<int32_t> idx(n);
+        CastOutput out;
+        out.t = t.data();
+        out.index = idx.data();
+        cast_rays(*tree, rays.data(), n, exact_options(3), 0.f, 2, out, nullptr);
+        for (size_t i = 0; i < n; ++i) {
+            CHECK(!std::isnan(t[i]) && t[i] >= 0.f, "extreme scale %g [%zu]: t %g", scale, i, t[i]);
+            CHECK(idx[i] >= -1 && idx[i] < int32_t(cl.size()), "extreme scale %g: index %d", scale, idx[i]);
+        }
+    }
+}
+
+void test_degenerate_rays_and_surfels() {
+    std::mt19937_64 g(51);
+    const double zero[3] = {0, 0, 0};
+    Cloud cl = random_sphere_cloud(g, 500, 1.0, zero);
+    // A zero normal and a zero radius: such surfels can never be hit (the Python layer rejects
+    // them, the core must still not misbehave).
+    cl.add(0.0, 0.0, 0.0, 0, 0, 0, 0.5f);
+    cl.add(0.0, 0.0, 0.0, 0, 0, 1, 0.0f);
+    auto tree = build(cl, 8, 3);
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    const double inf = std::numeric_limits<double>::infinity();
+    std::vector<double> rays = {
+        0, 0, 5, 0, 0, 0,        // zero direction: NaN after normalisation
+        0, 0, 5, nan, 0, -1,     // NaN direction
+        nan, 0, 5, 0, 0, -1,     // NaN origin
+        0, 0, inf, 0, 0, -1,     // infinite origin
+        0, 0, 5, 0, 0, -inf,     // infinite direction
+        0, 0, 5, 0, 0, -1e-40,   // denormal direction
+        0, 0, 5, 0, 0, -1,       // a normal ray, for contrast
+    };
+    const size_t n = rays.size() / 6;
+    std::vector<float> t(n), nrm(3 * n), col(3 * n), rad(n), tmax(n, 100.f);
+    std::vector<int32_t> idx(n);
+    std::vector<uint8_t> cnt(n), occ(n);
+    for (auto interp : {Interpolation::None, Interpolation::Paper, Interpolation::Smooth}) {
+        TraceOptions o;
+        o.interp = interp;
+        o.box_depth = 3;
+        CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
+        BatchStats st;
+        cast_rays(*tree, rays.data(), n, o, 0.002f, 2, out, &st);
+        occluded(*tree, rays.data(), tmax.data(), n, o, 0.f, 0.002f, 2, occ.data(), &st);
+        for (size_t i = 0; i + 1 < n; ++i)
+            CHECK(std::isinf(t[i]) || (t[i] >= 0.f && !std::isnan(t[i])), "degenerate ray %zu: t %g", i, t[i]);
+        CHECK(std::isinf(t[0]) && std::isinf(t[1]) && std::isinf(t[2]),
+              "NaN rays must miss: %g %g %g", t[0], t[1], t[2]);
+        CHECK(std::isfinite(t[n - 1]) && idx[n - 1] >= 0, "normal ray: t %g index %d", t[n - 1], idx[n - 1]);
+        CHECK(idx[n - 1] < 500, "the zero-normal / zero-radius surfels were hit: %d", idx[n - 1]);
+    }
+}
+
+void test_lod_and_interpolation_are_clean() {
+    // With LoD, culling and interpolation on, hits may differ from the nearest disk, but every
+    // output stays finite, unit and within the cloud's extent.
+    std::mt19937_64 g(61);
+    const double zero[3] = {0, 0, 0};
+    Cloud cl = random_sphere_cloud(g, 3000, 1.0, zero);
+    auto tree = build(cl, 8, 4);
+    auto rays = random_rays(g, 500, zero, 5.0, 1.0);
+    const size_t n = rays.size() / 6;
+    std::vector<float> t(n), nrm(3 * n), col(3 * n), rad(n);
+    std::vector<int32_t> idx(n);
+    std::vector<uint8_t> cnt(n);
+    for (auto crit : {LodCriterion::Size, LodCriterion::Deviation})
+        for (auto interp : {Interpolation::Paper, Interpolation::Smooth}) {
+            TraceOptions o;
+            o.lod_criterion = crit;
+            o.interp = interp;
+            o.box_depth = 4;
+            o.lod_pixels = 4.f;
+            CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
+            cast_rays(*tree, rays.data(), n, o, 0.01f, 2, out, nullptr);
+            for (size_t i = 0; i < n; ++i) {
+                if (std::isinf(t[i])) continue;
+                CHECK(t[i] >= 0.f && t[i] < 2.f, "lod [%zu]: t %g", i, t[i]);
+                float nl = std::sqrt(nrm[3 * i] * nrm[3 * i] + nrm[3 * i + 1] * nrm[3 * i + 1] +
+                                     nrm[3 * i + 2] * nrm[3 * i + 2]);
+                CHECK(std::fabs(nl - 1.f) < 1e-3f, "lod [%zu]: |n| %g", i, nl);
+                CHECK(idx[i] >= -2 && idx[i] < int32_t(cl.size()) && cnt[i] >= 1, "lod [%zu]: index %d", i, idx[i]);
+            }
+        }
+}
+
+/// A scene with two surfel objects, a ground, lights of every type.
+void test_render() {
+    std::mt19937_64 g(71);
+    const double zero[3] = {0, 0, 0};
+    Cloud sphere = random_sphere_cloud(g, 2000, 1.0, zero);
+    for (size_t i = 0; i < sphere.size(); ++i)   // outward normals for a sensible picture
+        for (int k = 0; k < 3; ++k) sphere.n[3 * i + k] = float(sphere.p[3 * i + k]);
+    Cloud one;
+    one.add(2.0, 0.0, 0.0, 0, 0, 1, 0.5f);
+    auto t1 = build(sphere, 8, 4);
+    auto t2 = build(one, 8, 4);
+    TraceOptions o;
+    o.box_depth = 4;
+    RenderScene scene;
+    RenderScene::Object a, b;
+    a.geometry = std::make_shared<SurfelGeometry>(t1.get(), o, Vec3{0, 0, 0});
+    b.geometry = std::make_shared<SurfelGeometry>(t2.get(), o, Vec3{-2.f, 0, 0});
+    b.material.mirror = 0.5f;
+    b.material.roughness = 0.2f;
+    scene.objects = {a, b};
+    scene.ground = true;
+    scene.ground_point = {0, -1.f, 0};
+    scene.ground_material.mirror = 0.3f;
+    scene.ground_material.checker = {0.2f, 0.2f, 0.2f};
+    scene.ground_material.checker_size = 0.5f;
+    Light sun;
+    sun.direction = normalize(Vec3{0.3f, 1.f, 0.2f});
+    sun.angle = 0.05f;
+    Light pt;
+    pt.type = LightType::Point;
+    pt.position = {0, 3, 3};
+    pt.radius = 0.2f;
+    Light area;
+    area.type = LightType::Area;
+    area.position = {-1, 3, 0};
+    area.edge_u = {1, 0, 0};
+    area.edge_v = {0, 0, 1};
+    scene.lights = {sun, pt, area};
+    scene.scale = 2.f;
+    CameraModel cam;
+    cam.eye = {0, 0.5f, 5};
+    cam.forward = normalize(Vec3{0, -0.1f, -1});
+    cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
+    cam.up = cross(cam.right, cam.forward);
+    cam.width = 37;   // not a multiple of the tile size
+    cam.height = 23;
+    RenderSettings set;
+    set.spp = 3;
+    set.reflections = 2;
+    FrameBuffers fb1, fb2;
+    RenderStats s1, s2;
+    std::atomic<bool> no{false};
+    set.threads = 1;
+    bool ok1 = render(scene, cam, set, fb1, s1, no);
+    set.threads = 2;
+    bool ok2 = render(scene, cam, set, fb2, s2, no);
+    CHECK(ok1 && ok2, "render returned cancelled");
+    CHECK(fb1.color == fb2.color && fb1.alpha == fb2.alpha, "render depends on thread count");
+    size_t hit = 0;
+    for (size_t i = 0; i < fb1.alpha.size(); ++i) {
+        CHECK(fb1.alpha[i] >= 0.f && fb1.alpha[i] <= 1.f, "alpha %g", fb1.alpha[i]);
+        hit += fb1.alpha[i] > 0.f;
+        CHECK(fb1.alpha[i] == 0.f ? std::isinf(fb1.depth[i]) : fb1.depth[i] > 0.f, "depth %g alpha %g",
+              fb1.depth[i], fb1.alpha[i]);
+    }
+    for (float v : fb1.color) CHECK(std::isfinite(v) && v >= 0.f, "colour %g", v);
+    for (float v : fb1.normal) CHECK(std::isfinite(v), "normal %g", v);
+    CHECK(hit > fb1.alpha.size() / 4, "only %zu of %zu pixels hit", hit, fb1.alpha.size());
+    CHECK(s1.tiles_done == s1.tiles_total, "tiles %llu of %llu", (unsigned long long)s1.tiles_done.load(),
+          (unsigned long long)s1.tiles_total);
+    // Cancelled before the start: returns false, touches no tile.
+    std::atomic<bool> yes{true};
+    FrameBuffers fb3;
+    RenderStats s3;
+    CHECK(!render(scene, cam, set, fb3, s3, yes), "a cancelled render reported success");
+    CHECK(s3.tiles_done == 0, "cancelled render did %llu tiles", (unsigned long long)s3.tiles_done.load());
+    // A 1x1 frame and a camera inside the sphere.
+    cam.width = cam.height = 1;
+    cam.eye = {0, 0, 0};
+    FrameBuffers fb4;
+    RenderStats s4;
+    CHECK(render(scene, cam, set, fb4, s4, no) && std::isfinite(fb4.color[0]), "1x1 render");
+}
+
+void test_empty_and_oversized_builds_throw() {
+    SurfelArrays a;
+    double origin[3] = {0, 0, 0};
+    bool threw = false;
+    try {
+        SurfelTree t(a, origin, BuildOptions{});
+    } catch (const std::invalid_argument &) {
+        threw = true;
+    }
+    CHECK(threw, "a tree of zero surfels did not throw invalid_argument");
+}
+
+}  // namespace
+
+int main() {
+    test_one_surfel();
+    test_duplicates();
+    test_line_and_plane();
+    test_random_clouds_match_brute_force();
+    test_offset_precision();
+    test_scales();
+    test_degenerate_rays_and_surfels();
+    test_lod_and_interpolation_are_clean();
+    test_render();
+    test_empty_and_oversized_builds_throw();
+    std::printf("core_tests: %d checks, %d failures\n", g_checks, g_failures);
+    return g_failures == 0 ? 0 : 1;
+}
