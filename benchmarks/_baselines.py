@@ -114,7 +114,7 @@ def _load(build_dir: Path = BUILD_DIR) -> ctypes.CDLL:
         "ed_create": (vp, [i, cp, cp, i]),
         "ed_release": (None, [vp]),
         "ed_device_property": (ll, [vp, i]),
-        "ed_build_discs": (i, [vp, vp, vp, ll, i, i, cp, i]),
+        "ed_build_discs": (i, [vp, vp, vp, ll, i, i, i, cp, i]),
         "ed_build_triangles": (i, [vp, vp, ll, vp, ll, i, i, cp, i]),
         "ed_build_seconds": (d, [vp]),
         "ed_build_peak_bytes": (ll, [vp]),
@@ -170,7 +170,7 @@ class EmbreeScene:
 
     @classmethod
     def discs(cls, points: np.ndarray, normals: np.ndarray, radii: np.ndarray, threads: int = 1,
-              quality: str = "medium", **kwargs) -> EmbreeScene:
+              quality: str = "medium", one_sided: bool = False, **kwargs) -> EmbreeScene:
         """Build a scene of RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT.
 
         Parameters
@@ -181,6 +181,9 @@ class EmbreeScene:
         threads : int
         quality : {"low", "medium", "high"}
             RTC_BUILD_QUALITY_*.
+        one_sided : bool
+            Ignore hits from behind a disc (direction . normal > 0) with an Embree filter
+            function; Embree's discs are two-sided otherwise. Costs a callback per candidate hit.
         **kwargs
             Passed to the constructor.
 
@@ -190,7 +193,7 @@ class EmbreeScene:
         """
         scene = cls(threads, **kwargs)
         try:
-            scene.build_discs(points, normals, radii, quality)
+            scene.build_discs(points, normals, radii, quality, one_sided=one_sided)
         except Exception:
             scene.close()
             raise
@@ -208,7 +211,8 @@ class EmbreeScene:
             raise
         return scene
 
-    def build_discs(self, points, normals, radii, quality: str = "medium", scene_flags: int = 0):
+    def build_discs(self, points, normals, radii, quality: str = "medium", scene_flags: int = 0,
+                    one_sided: bool = False):
         """(Re)build the scene from discs; see :meth:`discs`."""
         points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
         n = len(points)
@@ -218,10 +222,10 @@ class EmbreeScene:
         nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float32).reshape(n, 3))
         err = ctypes.create_string_buffer(ERROR_BUFFER)
         rc = self._lib.ed_build_discs(self._h, _ptr(xyzr), _ptr(nrm), n, QUALITIES[quality],
-                                      scene_flags, err, ERROR_BUFFER)
+                                      scene_flags, int(one_sided), err, ERROR_BUFFER)
         if rc != 0:
             raise RuntimeError(f"Embree disc build failed: {err.value.decode()}")
-        self.kind, self.primitives = "discs", n
+        self.kind, self.primitives = ("discs-one-sided" if one_sided else "discs"), n
 
     def build_triangles(self, vertices, faces, quality: str = "medium", scene_flags: int = 0):
         """(Re)build the scene from a triangle mesh; see :meth:`triangles`."""

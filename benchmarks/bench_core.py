@@ -407,6 +407,7 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                         "closest_best": paired["pointviz_closest"],
                         "occluded_best": paired["pointviz_occluded"],
                         "hit_fraction": float(np.mean(np.isfinite(t_pv))),
+                        "t_hit": t_pv,
                         "occluded_fraction": float(np.mean(occ)),
                         "stats": {k: float(v) for k, v in stats.items() if np.isscalar(v)},
                         "paired_embree": {"closest": paired["embree_closest"],
@@ -427,6 +428,22 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
             scene.close()
             del pv
         rec["rss_after_pointviz"] = common.peak_rss_bytes()
+        # Embree one-sided discs (back-facing hits filtered out): the semantics of a renderer that
+        # culls back-facing surfels; agreement columns compare it with pointviz.
+        if not args.no_one_sided:
+            with EmbreeScene.discs(model.points, model.normals, model.radii, threads=threads,
+                                   quality=args.quality, one_sided=True) as one:
+                rec["embree_discs_one_sided"] = {"build_s": one.build_seconds,
+                                                 **embree_memory(one, model.n)}
+                for set_name, rays in ray_sets.items():
+                    m = measure_embree(one, rays, tmax_sets[set_name], args.repeat)
+                    m["hit_fraction"] = float(np.mean(np.isfinite(m["t_hit"])))
+                    m["agreement_vs_discs"] = agreement(
+                        m["t_hit"], rec["embree_discs"][set_name]["t_hit"], model.diagonal)
+                    if rec["pointviz"]:
+                        m["agreement_vs_pointviz"] = agreement(
+                            rec["pointviz"][set_name]["t_hit"], m["t_hit"], model.diagonal)
+                    rec["embree_discs_one_sided"][set_name] = m
         # Embree triangles and Open3D on the source mesh.
         if model.mesh_faces is not None and not args.no_anchors:
             with EmbreeScene.triangles(model.mesh_vertices, model.mesh_faces, threads=threads,
@@ -471,8 +488,11 @@ def print_rows(model: common.SurfelModel, threads: int, rec: dict) -> None:
             f"{'closest Mr/s':>13} {'(mode)':<9} {'occl Mr/s':>10} {'(mode)':<9} {'hit%':>6} "
             f"{'agree':>6} {'med|dt|/d':>9}")
     print(head)
+    print(f"{'':>7} (agree = hit/miss agreement, med|dt|/d = median |Δt| / diagonal: pointviz vs "
+          "Embree discs; Embree 1-sided vs pointviz; triangles vs discs)")
     print("-" * len(head))
     engines = [("embree discs", rec["embree_discs"], model.n),
+               ("embree 1-sided", rec.get("embree_discs_one_sided"), model.n),
                ("embree triangles", rec["embree_triangles"], model.n),
                ("open3d triangles", rec["open3d"], model.n),
                (f"pointviz {rec['pointviz'].get('variant', '')}", rec["pointviz"], model.n)]
@@ -486,8 +506,12 @@ def print_rows(model: common.SurfelModel, threads: int, rec: dict) -> None:
             m = data.get(set_name)
             if m is None:
                 continue
-            agree = (rec["agreement"].get(set_name) if label.startswith("pointviz")
-                     else m.get("agreement_vs_discs"))
+            if label.startswith("pointviz"):
+                agree = rec["agreement"].get(set_name)
+            elif label == "embree 1-sided":
+                agree = m.get("agreement_vs_pointviz") or m.get("agreement_vs_discs")
+            else:
+                agree = m.get("agreement_vs_discs")
             print(f"{threads:>7} {label:<17} {set_name:<8} {_fmt(data.get('build_s')):>8} "
                   f"{_fmt(per, '.1f'):>9} {_fmt(m['closest_best']):>13} "
                   f"{m.get('closest_best_mode', ''):<9} {_fmt(m['occluded_best']):>10} "
@@ -556,6 +580,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--variant", default="full", help="pointviz SurfelScene variant")
     p.add_argument("--no-anchors", action="store_true",
                    help="skip Embree triangles and Open3D on the source mesh")
+    p.add_argument("--no-one-sided", action="store_true",
+                   help="skip the one-sided Embree disc variant (back-face filter)")
     p.add_argument("--quick", action="store_true",
                    help=f"smoke run: {QUICK_SIZE:,} surfels, {QUICK_WIDTH}x{QUICK_HEIGHT} rays, "
                         "repeat 1")

@@ -188,3 +188,17 @@ def test_bench_core_quick(embree, tmp_path):
     assert discs["primary"]["closest_best"] > 0
     assert discs["primary"]["modes_identical"]
     assert 0.05 < discs["primary"]["hit_fraction"] < 1.0
+
+
+@pytest.mark.parametrize("mode", _baselines.QUERY_MODES)
+def test_embree_one_sided_discs(embree, mode):
+    rays, expected_t, expected_id = analytic_rays()
+    with embree.EmbreeScene.discs(ANALYTIC_CENTRES, ANALYTIC_NORMALS, ANALYTIC_RADII,
+                                  one_sided=True) as scene:
+        out = scene.intersect(rays, mode=mode)
+        front = np.sum(rays[:, 3:] * ANALYTIC_NORMALS[np.maximum(expected_id, 0)], axis=1) < 0
+        # Front-facing hits are unchanged; the ray from below (index 3) passes through disc 0.
+        keep = (expected_id >= 0) & front
+        np.testing.assert_allclose(out["t_hit"][keep], expected_t[keep], rtol=T_RTOL)
+        assert not np.isfinite(out["t_hit"][3])
+        assert not scene.occluded(rays[3:4], [100.0], mode=mode)[0]

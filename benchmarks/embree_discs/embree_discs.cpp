@@ -249,6 +249,20 @@ void occluded_packets(const Handle* h, const float* rays, long long begin, long 
     }
 }
 
+// Intersection/occlusion filter that turns Embree's two-sided discs into one-sided ones: a hit is
+// rejected when the ray arrives from behind (dir . Ng > 0; Embree's disc Ng is the given normal).
+// Used to match renderers that cull back-facing surfels.
+void one_sided_filter(const RTCFilterFunctionNArguments* args) {
+    const unsigned n = args->N;
+    for (unsigned i = 0; i < n; ++i) {
+        if (args->valid[i] != -1) continue;
+        const float dot = RTCRayN_dir_x(args->ray, n, i) * RTCHitN_Ng_x(args->hit, n, i) +
+                          RTCRayN_dir_y(args->ray, n, i) * RTCHitN_Ng_y(args->hit, n, i) +
+                          RTCRayN_dir_z(args->ray, n, i) * RTCHitN_Ng_z(args->hit, n, i);
+        if (dot > 0.0f) args->valid[i] = 0;
+    }
+}
+
 bool valid_mode(int mode) { return mode == 1 || mode == 4 || mode == 8 || mode == 16; }
 
 RTCBuildQuality to_quality(int quality) {
@@ -326,9 +340,10 @@ long long ed_device_property(void* handle, int property) {
     return static_cast<long long>(rtcGetDeviceProperty(h->device, static_cast<RTCDeviceProperty>(property)));
 }
 
-// Discs: xyzr (n, 4) float32 = centre and radius; normals (n, 3) float32.
+// Discs: xyzr (n, 4) float32 = centre and radius; normals (n, 3) float32. one_sided != 0 installs
+// a filter that ignores hits from behind the disc (Embree's discs are two-sided otherwise).
 int ed_build_discs(void* handle, const float* xyzr, const float* normals, long long n, int quality,
-                   int scene_flags, char* err, int err_len) {
+                   int scene_flags, int one_sided, char* err, int err_len) {
     auto* h = static_cast<Handle*>(handle);
     h->error.clear();
     const long long baseline = begin_build(h);
@@ -345,6 +360,10 @@ int ed_build_discs(void* handle, const float* xyzr, const float* normals, long l
                                4 * sizeof(float), static_cast<size_t>(n));
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, h->normals.data(), 0,
                                3 * sizeof(float), static_cast<size_t>(n));
+    if (one_sided) {
+        rtcSetGeometryIntersectFilterFunction(g, one_sided_filter);
+        rtcSetGeometryOccludedFilterFunction(g, one_sided_filter);
+    }
     const int rc = commit_scene(h, g, quality, scene_flags, start, baseline);
     copy_error(h, err, err_len);
     return rc;
