@@ -11,12 +11,6 @@
 namespace pointviz {
 namespace {
 
-/// Nodes with at most this many surfels get their sphere radius and normal cone from their own
-/// surfels (exact); larger nodes compose their children's bounds (conservative, O(1) each).
-/// Exact bounds matter most low in the tree, where spheres are used and rays spend their
-/// time; this keeps the build O(n log(kExactBoundSurfels / leaf)) for those passes.
-constexpr uint32_t kExactBoundSurfels = 1024;
-
 /// Largest cloud the 32-bit indices of the layout can address (with margin for flags).
 constexpr size_t kMaxSurfels = size_t(1) << 31;
 
@@ -30,7 +24,6 @@ struct Range {
 struct Sums {
     Vec3 nsum;     ///< sum of normals
     Vec3 csum;     ///< sum of colours
-    float theta;   ///< cone half-angle (radians)
 };
 
 }  // namespace
@@ -53,9 +46,10 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
         }
     });
 
-    // Topology, one level at a time: median split of the longest axis of the centres' box.
-    // The median (not the spatial midpoint) bounds the depth by log2(n / leaf) + 1 whatever
-    // the distribution (duplicates, outliers), so traversal can use a fixed-size stack.
+    // Topology, one level at a time: split at the (leaf-aligned) median of the longest axis of
+    // the centres' box. The median (not the spatial midpoint) bounds the depth by
+    // log2(n / leaf) + 1 whatever the distribution (duplicates, outliers), so traversal can use
+    // a fixed-size stack.
     std::vector<uint32_t> idx(n);
     std::iota(idx.begin(), idx.end(), 0u);
     std::vector<Range> ranges{{0u, uint32_t(n)}};
@@ -86,7 +80,10 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 }
                 Vec3 ext = hi - lo;
                 int axis = ext.x >= ext.y ? (ext.x >= ext.z ? 0 : 2) : (ext.y >= ext.z ? 1 : 2);
-                uint32_t mid = r.b + r.size() / 2;
+                // Near-median: the left side gets half of the leaves' worth of surfels, so
+                // every leaf but one is full and the tree has ceil(n / leaf) leaves.
+                uint32_t leaves = (r.size() + leaf - 1) / leaf;
+                uint32_t mid = r.b + std::min(r.size() - 1, ((leaves + 1) / 2) * leaf);
                 std::nth_element(idx.begin() + r.b, idx.begin() + mid, idx.begin() + r.e,
                                  [&](uint32_t a, uint32_t c) { return pos[a][axis] < pos[c][axis]; });
                 uint32_t fc = first_child[i];
@@ -165,25 +162,16 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 // A mean normal this short means opposite normals cancel: no useful cone.
                 bool degenerate = nlen < 1e-3f * float(r.size());
                 float radius = 0.f, theta = 0.f;
-                if (r.size() <= kExactBoundSurfels || !interior) {
-                    float cosmin = 1.f;
-                    for (uint32_t k = r.b; k < r.e; ++k) {
-                        const Surfel &s = surfels_[k];
-                        radius = std::max(radius, length(s.p - c) + s.r);
-                        cosmin = std::min(cosmin, dot(s.n, axis));
-                    }
-                    theta = std::acos(std::clamp(cosmin, -1.f, 1.f));
-                } else {
-                    uint32_t fc = first_child[i];
-                    for (uint32_t ch = fc; ch < fc + 2; ++ch) {
-                        radius = std::max(radius, length(nodes_[ch].c - c) + nodes_[ch].radius);
-                        Vec3 ca = normalize(sums[ch].nsum);
-                        float ang = std::acos(std::clamp(dot(ca, axis), -1.f, 1.f));
-                        theta = std::max(theta, ang + sums[ch].theta);
-                    }
+                // Exact sphere and cone from the subtree's own surfels: O(n) per level, and
+                // composing children's bounds instead would loosen the top spheres 2-3x.
+                float cosmin = 1.f;
+                for (uint32_t k = r.b; k < r.e; ++k) {
+                    const Surfel &s = surfels_[k];
+                    radius = std::max(radius, length(s.p - c) + s.r);
+                    cosmin = std::min(cosmin, dot(s.n, axis));
                 }
+                theta = std::acos(std::clamp(cosmin, -1.f, 1.f));
                 if (degenerate) theta = 3.1415927f;
-                sm.theta = theta;
                 // Rounding: radius from float math; grow by a relative ulp-scale margin.
                 nd.radius = radius * (1.f + 1e-6f) + 1e-7f;
                 nd.normal = oct_encode(axis);
