@@ -234,7 +234,7 @@ def _connect(scheduler, workers: int):
             raise InputError(f"workers: expected a positive integer, got {workers!r}")
         cluster = distributed.LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=True,
-            dashboard_address=None, silence_logs=40)  # logging.ERROR
+            dashboard_address=":0", silence_logs=40)  # logging.ERROR
         try:
             client = distributed.Client(cluster, timeout=CONNECT_TIMEOUT_S)
         except BaseException:

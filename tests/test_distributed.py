@@ -1,0 +1,133 @@
+"""Tests of pointviz.distributed: frames rendered on a 2-process Dask LocalCluster are
+byte-identical to the serial render (the oracle), the scene is built once per worker, and a
+worker killed mid-run does not stop the path from finishing.
+
+The cluster tests start real worker processes (three clusters of two, about 6 s in all on a
+2-core machine, so they are not marked slow). Timeouts are generous on purpose (the machine is
+shared).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+
+import pytest
+
+from pointviz.distributed import render_frame_task, scene_spec
+from pointviz.path import CameraPath, render_path
+from pointviz.scene import Scene
+from pointviz.shapes import sphere, torus
+
+distributed = pytest.importorskip("distributed")
+
+W, H = 64, 48
+SETTINGS = {"spp": 1, "reflections": 0, "threads": 1}
+#: Seconds allowed for workers to start or restart on a busy 2-core machine.
+CLUSTER_TIMEOUT_S = 120
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return Scene([sphere(3000, 0.6, (-0.5, 0.6, 0.0), color=(0.8, 0.3, 0.2)),
+                  torus(4000, 0.5, 0.2, (0.6, 0.2, 0.2), color=(0.9, 0.8, 0.3))], up=(0, 1, 0))
+
+
+@pytest.fixture(scope="module")
+def path(scene):
+    return CameraPath.orbit(scene, seconds=1.0, fps=8, width=W, height=H)  # 9 frames
+
+
+@pytest.fixture(scope="module")
+def serial_frames(scene, path, tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    render_path(scene, path, out, progress=False, **SETTINGS)
+    return {p.name: p.read_bytes() for p in out.glob("frame_*.png")}
+
+
+def start_cluster(n=2):
+    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=40)
+    client = distributed.Client(cluster, timeout=CLUSTER_TIMEOUT_S)
+    client.wait_for_workers(n, timeout=CLUSTER_TIMEOUT_S)
+    return cluster, client
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    cluster, client = start_cluster()
+    yield cluster, client
+    client.close()
+    cluster.close()
+
+
+def frames_of(folder):
+    return {p.name: p.read_bytes() for p in folder.glob("frame_*.png")}
+
+
+def test_spec_pickles_without_trees_and_rebuilds_the_same_frame(scene, path):
+    spec = scene_spec(scene)
+    assert scene_spec(scene).key == spec.key  # stable content hash
+    copy = pickle.loads(pickle.dumps(spec))
+    assert copy._built is None and copy.key == spec.key
+    cam = path.cameras()[3].to_dict()
+    local, _ = render_frame_task(spec, cam, SETTINGS)
+    remote, info = render_frame_task(copy, cam, SETTINGS)
+    assert info["built"] and remote == local
+    _, again = render_frame_task(copy, cam, SETTINGS)
+    assert not again["built"]  # built once per process, then reused
+
+
+def test_cluster_frames_identical_to_serial(scene, path, serial_frames, cluster, tmp_path):
+    _, client = cluster
+    summary = render_path(scene, path, tmp_path, scheduler=client, progress=False, **SETTINGS)
+    assert frames_of(tmp_path) == serial_frames
+    assert summary["rendered"] == path.n_frames and summary["workers"] == 2
+    # the scene is built at most once per worker process
+    assert all(n == 1 for n in summary["scene_builds"].values())
+    pids = set(client.run(os.getpid).values())
+    assert set(summary["scene_builds"]) <= pids
+
+
+def test_cluster_by_address_resumes(scene, path, serial_frames, cluster, tmp_path):
+    local_cluster, _ = cluster
+    render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    for name in ("frame_00002.png", "frame_00007.png"):
+        (tmp_path / name).unlink()
+    summary = render_path(scene, path, tmp_path, scheduler=local_cluster.scheduler_address,
+                          progress=False, **SETTINGS)
+    assert summary["rendered"] == 2 and summary["skipped"] == path.n_frames - 2
+    assert frames_of(tmp_path) == serial_frames
+
+
+def test_default_local_cluster(scene, path, serial_frames, tmp_path):
+    summary = render_path(scene, path, tmp_path, scheduler="local", workers=2, progress=False,
+                          **SETTINGS)
+    assert summary["workers"] == 2
+    assert frames_of(tmp_path) == serial_frames
+
+
+def test_killed_worker_still_finishes(scene, serial_frames, tmp_path):
+    # a longer path so that frames remain queued when the worker dies
+    path = CameraPath.orbit(scene, seconds=1.0, fps=24, width=W, height=H)  # 25 frames
+    cluster, client = start_cluster()
+    try:
+        victims = []
+
+        def kill_one_worker_after_first_frame(done, total):
+            if done == 1 and not victims:
+                pid = next(iter(client.run(os.getpid).values()))
+                victims.append(pid)
+                os.kill(pid, signal.SIGKILL)  # the worker process dies mid-run; its nanny restarts it
+            return True
+
+        summary = render_path(scene, path, tmp_path / "dist", scheduler=client, retries=3,
+                              progress=kill_one_worker_after_first_frame, **SETTINGS)
+        assert victims and summary["rendered"] == path.n_frames
+        assert victims[0] not in set(client.run(os.getpid).values())  # a new process took over
+    finally:
+        client.close()
+        cluster.close()
+    render_path(scene, path, tmp_path / "serial", progress=False, **SETTINGS)
+    assert frames_of(tmp_path / "dist") == frames_of(tmp_path / "serial")
