@@ -1,0 +1,176 @@
+"""Scaling of pointviz with surfel count and threads, with Embree oriented discs alongside.
+
+For each size (Armadillo surface-sampled, 0.1M .. 20M surfels; ``--max`` caps it) and each thread
+count (1, 2): build time, memory (``scene.memory_bytes`` per surfel; the growth of this process's
+resident set over the build; peak RSS) and throughput of the full-view 400x400 primary rays with
+the ``full`` variant (LoD from the camera), next to Embree discs built and queried with the same
+threads (``rtcIntersect1`` per ray) on the same surfels and rays. Builds and queries of the two
+engines are interleaved and repeated ``--repeat`` times (median), so the ratios compare runs made
+moments apart on this shared machine.
+
+Examples
+--------
+python benchmarks/bench_scaling.py --quick
+python benchmarks/bench_scaling.py --max 3e6
+python benchmarks/bench_scaling.py            # up to 20M surfels (~15 min, ~8 GB)
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import common  # noqa: E402
+import paper_figures as pf  # noqa: E402
+
+SIZES = (100_000, 300_000, 1_000_000, 3_000_000, 10_000_000, 20_000_000)
+QUICK_SIZES = (5_000, 20_000)
+THREADS = (1, 2)
+
+
+def rss_bytes() -> int:
+    """Current resident set size of this process (Linux /proc)."""
+    import os
+
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def measure_size(model: pf.Model, args) -> dict:
+    """Build and cast at every thread count, pointviz and Embree interleaved."""
+    import pointviz
+
+    px = pf.QUICK_PIXELS if args.quick else pf.PAPER_WIDTH
+    cam = pf.fit_camera(model.cloud, px)
+    rays = pf.rays64(cam)
+    rays32 = common.as_float32(rays)
+    rec = {"n": model.n, "threads": {}}
+    for threads in args.threads_list:
+        builds = {"pointviz": [], "embree discs": []}
+        rss_growth, scene, discs = [], None, None
+        for _ in range(args.build_repeat):
+            scene = discs = None
+            gc.collect()
+            before = rss_bytes()
+            start = time.perf_counter()
+            scene = pointviz.SurfelScene(model.cloud, variant="full", threads=threads)
+            builds["pointviz"].append(time.perf_counter() - start)
+            rss_growth.append(rss_bytes() - before)
+            discs, why = pf.embree_discs(model.cloud, threads)
+            if discs is not None:
+                builds["embree discs"].append(discs.build_seconds)
+        calls = {"pointviz": lambda: pf.core_cast(scene, rays, cam.pixel_angle, threads)}
+        if discs is not None:
+            calls["embree discs"] = lambda: discs.intersect(rays32, mode=1)
+        times = pf.interleaved(calls, args.repeat)
+        row = {"build_seconds": {k: float(np.median(v)) for k, v in builds.items() if v},
+               "cast_seconds": {k: t["median"] for k, t in times.items()},
+               "mrays": {k: len(rays) / t["median"] / 1e6 for k, t in times.items()},
+               "bytes_per_surfel": scene.memory_bytes / model.n,
+               "rss_growth_per_surfel": float(np.median(rss_growth)) / model.n,
+               "depth": scene.depth, "box_depth": scene.box_depth}
+        if discs is not None:
+            row["embree_bytes_per_surfel"] = (discs.scene_bytes + discs.input_bytes) / model.n
+            row["cast_ratio"] = times["pointviz"]["median"] / times["embree discs"]["median"]
+            row["build_ratio"] = row["build_seconds"]["pointviz"] / row["build_seconds"]["embree discs"]
+            discs.close()
+        else:
+            row["embree_skipped"] = why
+        rec["threads"][str(threads)] = row
+        del scene, discs
+    rec["peak_rss_bytes"] = common.peak_rss_bytes()
+    return rec
+
+
+def print_row(rec: dict) -> None:
+    """One line per (size, threads)."""
+    for t, r in rec["threads"].items():
+        b, m = r["build_seconds"], r["mrays"]
+        print(f"{rec['n']:>11,}{t:>4}{b['pointviz']:>9.2f}{b.get('embree discs', float('nan')):>9.2f}"
+              f"{r['bytes_per_surfel']:>8.1f}{r.get('embree_bytes_per_surfel', float('nan')):>8.1f}"
+              f"{r['rss_growth_per_surfel']:>9.1f}{m['pointviz']:>9.2f}"
+              f"{m.get('embree discs', float('nan')):>9.2f}{r.get('cast_ratio', float('nan')):>8.2f}"
+              f"{rec['peak_rss_bytes'] / 2**30:>8.2f}", flush=True)
+
+
+def chart(rows: list, out_dir: Path) -> Path:
+    """Build time, bytes/surfel and Mrays/s against size, one line per engine and thread count."""
+    plt = pf.pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    n = [r["n"] for r in rows]
+    for t in rows[0]["threads"]:
+        for eng, ls in (("pointviz", "-o"), ("embree discs", "--s")):
+            if eng not in rows[0]["threads"][t]["mrays"]:
+                continue
+            lab = f"{eng}, {t} thr"
+            axes[0].plot(n, [r["threads"][t]["build_seconds"][eng] for r in rows], ls, ms=3, label=lab)
+            axes[2].plot(n, [r["threads"][t]["mrays"][eng] for r in rows], ls, ms=3, label=lab)
+    t0 = next(iter(rows[0]["threads"]))
+    axes[1].plot(n, [r["threads"][t0]["bytes_per_surfel"] for r in rows], "-o", ms=3,
+                 label="pointviz (memory_bytes)")
+    axes[1].plot(n, [r["threads"][t0]["rss_growth_per_surfel"] for r in rows], ":o", ms=3,
+                 label="pointviz (RSS growth in build)")
+    if "embree_bytes_per_surfel" in rows[0]["threads"][t0]:
+        axes[1].plot(n, [r["threads"][t0]["embree_bytes_per_surfel"] for r in rows], "--s", ms=3,
+                     label="embree discs (BVH + 28 B input)")
+    for ax, title in zip(axes, ("build time (s)", "bytes / surfel", "primary Mrays/s (400x400)")):
+        ax.set_xscale("log")
+        ax.set_xlabel("surfels")
+        ax.set_title(title)
+        ax.legend(fontsize=7)
+    axes[0].set_yscale("log")
+    fig.suptitle("Scaling with surfel count and threads (Armadillo, full variant)")
+    return pf.save_figure(fig, out_dir, "scaling.png")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the scaling sweep; print the table, write JSON and a PNG; return the exit code."""
+    p = pf.base_parser(__doc__.split("\n\n")[0], "scaling")
+    p.add_argument("--max", type=float, default=max(SIZES), help="largest size (default 20M)")
+    p.add_argument("--threads-list", default="1,2", help="thread counts (default 1,2)")
+    p.add_argument("--build-repeat", type=int, default=2,
+                   help="builds per engine and thread count, alternating (median)")
+    args = p.parse_args(argv)
+    args.threads_list = [int(t) for t in args.threads_list.split(",") if t.strip()]
+    sizes = QUICK_SIZES if args.quick else tuple(s for s in SIZES if s <= args.max)
+    if args.quick:
+        args.repeat = args.build_repeat = 1
+    probe = common.probe_pointviz()
+    if not probe.available:
+        print(probe.reason)
+        return 2
+    result = {"benchmark": "scaling", "date": time.strftime("%Y-%m-%dT%H:%M:%S"),
+              "machine": pf.machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
+              "notes": ("pointviz full variant, core cast of float64 rays; Embree discs "
+                        "rtcIntersect1; medians of interleaved repeats; RSS growth = resident "
+                        "set after minus before the pointviz build"),
+              "sizes": []}
+    print(f"{'surfels':>11}{'thr':>4}{'pv bld s':>9}{'em bld s':>9}{'pv B/s':>8}{'em B/s':>8}"
+          f"{'RSS B/s':>9}{'pv Mr/s':>9}{'em Mr/s':>9}{'pv/em t':>8}{'peak GB':>8}")
+    for n in sizes:
+        try:
+            model = pf.armadillo(args.data, n)
+        except common.DataMissingError as exc:
+            print(f"SKIP: {exc}")
+            return 0
+        rec = measure_size(model, args)
+        print_row(rec)
+        result["sizes"].append(rec)
+        del model
+        gc.collect()
+        # Partial results survive a run stopped halfway through the big sizes.
+        pf.write_json(args.out, "scaling.json", result)
+    result["charts"] = [chart(result["sizes"], args.out).name] if result["sizes"] else []
+    path = pf.write_json(args.out, "scaling.json", result)
+    print(f"\nwrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
