@@ -207,10 +207,15 @@ class Scene:
         Default: the first cloud's ``up`` hint, else +Y.
     ambient : float
         Strength of the sky's ambient light.
+    sky : (3,) float or dict, optional
+        One colour for the whole sky, or ``{"zenith": rgb, "horizon": rgb, "below": rgb}``;
+        default a soft blue-grey gradient.
+    **scene_options
+        Passed to the SurfelScene built for each PointCloud (e.g. ``interpolation``).
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
-                 up=None, ambient: float = 0.3, **scene_options):
+                 up=None, ambient: float = 0.3, sky=None, **scene_options):
         from .surfels import SurfelScene
 
         if not isinstance(clouds, (list, tuple)):
@@ -256,6 +261,16 @@ class Scene:
         else:
             self.background = _rgb(background, "background")
         self.ambient = _in_range(ambient, "ambient", 0.0, 10.0)
+        if sky is None:
+            self.sky = {}
+        elif isinstance(sky, dict):
+            unknown = set(sky) - {"zenith", "horizon", "below"}
+            if unknown:
+                raise InputError(f"sky: unknown keys {sorted(unknown)}")
+            self.sky = {k: _rgb(v, f"sky.{k}") for k, v in sky.items()}
+        else:
+            c = _rgb(sky, "sky")
+            self.sky = {"zenith": c, "horizon": c, "below": c}
 
     # -- geometry -----------------------------------------------------------------------------
     def surfel_scene(self, i: int):
@@ -327,6 +342,8 @@ class Scene:
             else:
                 raise InputError(f"lights: unknown light type {type(light).__name__}")
         sky = _core.Sky()
+        for key, value in self.sky.items():
+            setattr(sky, key, value)
         sky.up = tuple(self.up)
         sky.ambient = self.ambient
         if self.background is not None:

@@ -1,0 +1,240 @@
+"""Tests of final frames (pointviz.render, pointviz.scene, ext/ renderer).
+
+Oracles: analytic shadows of a sphere over a plane, a mirrored copy of the scene for
+reflections, analytic depth and normals of a sphere, and the renderer itself across thread
+counts and seeds.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import pointviz
+from pointviz import Camera, DirectionalLight, Material, Scene, shapes
+from pointviz.errors import CancelledError, InputError
+
+
+def sphere_oracle(cam, center, radius):
+    """Analytic depth (inf on a miss) and normals of a sphere for the camera's pixel centres."""
+    rays = cam.rays(dtype=np.float64)
+    o, d = rays[:, :3] - center, rays[:, 3:]
+    b = np.einsum("ij,ij->i", o, d)
+    c = np.einsum("ij,ij->i", o, o) - radius**2
+    disc = b * b - c
+    t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0)), np.inf)
+    p = o + d * np.where(np.isfinite(t), t, 0)[:, None]
+    n = p / radius
+    return t.reshape(cam.height, cam.width), n.reshape(cam.height, cam.width, 3)
+
+
+@pytest.fixture(scope="module")
+def ball():
+    return shapes.sphere(60_000, radius=1.0, center=(0.0, 1.5, 0.0), color=(0.8, 0.8, 0.8))
+
+
+def test_depth_and_normal_buffers_match_analytic_sphere(ball):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), fov_deg=35, width=160, height=120)
+    frame = pointviz.render(Scene(ball, ground="none"), cam, spp=1, lod_pixels=0, shadows=False,
+                            reflections=0)
+    t, n = sphere_oracle(cam, np.array([0, 1.5, 0]), 1.0)
+    inside = np.isfinite(t)
+    facing = np.abs(np.einsum("hwc,hwc->hw", n, cam.rays(dtype=np.float64)[:, 3:].reshape(n.shape))) > 0.3
+    sel = inside & facing
+    assert sel.sum() > 2000
+    assert np.array_equal(frame.alpha[sel] > 0, np.ones(sel.sum(), bool))
+    assert np.abs(frame.depth[sel] - t[sel]).max() < 0.01
+    cosang = np.einsum("hwc,hwc->hw", frame.normal, n)[sel]
+    assert np.degrees(np.arccos(np.clip(cosang, -1, 1))).mean() < 1.0
+    assert (frame.alpha[~inside] == 0).mean() > 0.99  # misses are misses
+
+
+def test_shadow_of_sphere_on_plane_matches_analytic(ball):
+    # Light straight down, hard: the shadow is the disk under the sphere.
+    cam = Camera.look_at((0.0, 6.0, 3.0), (0, 0, 0), fov_deg=40, width=160, height=120)
+    light = DirectionalLight(direction=(0, 1, 0), intensity=1.0, angle_deg=0.0)
+    scene = Scene(ball, lights=[light], ground=Material(color=(0.8, 0.8, 0.8), specular=0.0),
+                  ambient=0.0)
+    frame = pointviz.render(scene, cam, spp=1, reflections=0)
+    h = scene.ground_point()[1]  # "auto" ground: just under the sphere
+    assert 0.45 < h <= 0.5
+    rays = cam.rays(dtype=np.float64)
+    t_ground = (h - rays[:, 1]) / rays[:, 4]
+    p = rays[:, :3] + rays[:, 3:] * t_ground[:, None]
+    on_ground = (np.abs(frame.depth.ravel() - t_ground) < 1e-3 * t_ground)
+    in_shadow = np.hypot(p[:, 0], p[:, 2]) < 1.0
+    lum = frame.color.mean(axis=2).ravel()
+    dark = lum < 0.05
+    # compare away from the shadow's rim: one pixel's footprint on the ground
+    rim = np.abs(np.hypot(p[:, 0], p[:, 2]) - 1.0) < 2.0 * cam.pixel_angle * t_ground
+    sel = on_ground & ~rim
+    assert sel.sum() > 5000 and (sel & in_shadow).sum() > 200
+    assert np.array_equal(dark[sel], in_shadow[sel])
+
+
+def test_no_shadow_acne_on_lit_curved_surface(ball):
+    # Every front-facing point of the sphere lit at more than ~10 degrees must be lit.
+    cam = Camera.look_at((0.0, 1.5, 5.0), (0, 1.5, 0), fov_deg=35, width=160, height=120)
+    light = DirectionalLight(direction=(0.3, 0.8, 1.0), angle_deg=0.0)
+    scene = Scene(ball, lights=[light], ground="none", ambient=0.0,
+                  materials=Material(specular=0.0))
+    frame = pointviz.render(scene, cam, spp=1, reflections=0)
+    _, n = sphere_oracle(cam, np.array([0, 1.5, 0]), 1.0)
+    ldir = np.array([0.3, 0.8, 1.0]) / np.linalg.norm([0.3, 0.8, 1.0])
+    ndl = np.einsum("hwc,c->hw", n, ldir)
+    lit = (frame.alpha == 1) & (ndl > 0.2)
+    albedo = 0.8 * 0.6038  # base colour x the sRGB-decoded point colour 0.8
+    ratio = frame.color.mean(axis=2)[lit] / (albedo * ndl[lit])
+    assert lit.sum() > 3000
+    assert np.quantile(ratio, 0.001) > 0.8  # not one pixel in a thousand wrongly shadowed
+
+
+def test_mirror_floor_shows_mirror_image():
+    # Uniform sky and constant ambient light only: shading does not depend on orientation, so
+    # the mirror's picture must equal the mirrored cloud rendered directly.
+    ball = shapes.sphere(40_000, radius=0.8, center=(0.0, 1.2, 0.0))
+    shade = np.clip(0.2 + 0.6 * (ball.points[:, 1:2] - 0.4) / 1.6, 0, 1)
+    colors = np.repeat(shade, 3, axis=1) * [1.0, 0.6, 0.3]
+    obj = pointviz.PointCloud(ball.points, ball.normals, ball.radii, colors)
+    mirror = Material(color=(1, 1, 1), diffuse=0.0, specular=0.0, mirror=1.0, use_point_colors=False)
+    mat = Material(specular=0.0)
+    sky = (0.7, 0.75, 0.8)  # one colour: reflected and direct misses see the same
+    a = Scene(obj, ground=mirror, materials=mat, lights=[], ambient=1.0, sky=sky)
+    h = a.ground_point()[1]
+    flipped = ball.points.copy()
+    flipped[:, 1] = 2 * h - flipped[:, 1]
+    normals = ball.normals * np.array([1.0, -1.0, 1.0], np.float32)
+    mirrored = pointviz.PointCloud(flipped, normals, ball.radii, colors)
+    b = Scene([obj, mirrored], ground="none", materials=[mat, mat], lights=[], ambient=1.0, sky=sky)
+    cam = Camera.look_at((0.0, 1.5, 5.0), (0, 0.0, 0), fov_deg=45, width=160, height=120)
+    fa = pointviz.render(a, cam, spp=1, reflections=1, lod_pixels=0, shadows=False)
+    fb = pointviz.render(b, cam, spp=1, reflections=1, lod_pixels=0, shadows=False)
+    rays = cam.rays(dtype=np.float64)
+    down = rays[:, 4] < 0
+    t_floor = np.where(down, (h - rays[:, 1]) / np.where(down, rays[:, 4], -1.0), np.inf)
+    behind = (fb.depth.ravel() > t_floor) & np.isfinite(fb.depth.ravel())
+    sel = behind.reshape(fb.depth.shape) & (fa.alpha == 1)
+    assert sel.sum() > 1000
+    diff = np.abs(fa.color - fb.color).mean(axis=2)[sel]
+    assert np.median(diff) < 0.01 and np.quantile(diff, 0.95) < 0.05
+
+
+def test_frames_identical_across_thread_counts(ball):
+    scene, cam = shapes.demo_scene(detail=0.2)
+    cam = cam.with_size(96, 64)
+    f1 = pointviz.render(scene, cam, spp=4, threads=1, seed=7)
+    f2 = pointviz.render(scene, cam, spp=4, threads=2, seed=7)
+    f3 = pointviz.render(scene, cam, spp=4, threads=2, seed=8)
+    for key in ("color", "depth", "normal", "alpha"):
+        np.testing.assert_array_equal(getattr(f1, key), getattr(f2, key))
+    assert not np.array_equal(f1.color, f3.color)  # the seed matters (soft light, antialiasing)
+
+
+def test_lod_changes_the_image_little_at_one_pixel():
+    scene, cam = shapes.demo_scene(detail=0.5)
+    cam = cam.with_size(200, 125)
+    full = pointviz.render(scene, cam, spp=1, lod_pixels=0, seed=0)
+    lod = pointviz.render(scene, cam, spp=1, lod_pixels=1.0, seed=0)
+    a = full.to_srgb8().astype(float)
+    b = lod.to_srgb8().astype(float)
+    mse = np.mean((a - b) ** 2)
+    psnr = 10 * np.log10(255.0**2 / max(mse, 1e-12))
+    assert psnr > 30.0
+
+
+def test_cancel_stops_and_raises(ball):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=320, height=240)
+    stop = threading.Event()
+    seen = []
+
+    def progress(done, total):
+        seen.append((done, total))
+        stop.set()
+
+    with pytest.raises(CancelledError):
+        pointviz.render(ball, cam, spp=64, progress=progress, cancel=stop)
+    assert seen and seen[-1][0] < seen[-1][1]
+
+    with pytest.raises(CancelledError):
+        pointviz.render(ball, cam, spp=64, progress=lambda d, t: False)
+
+
+def test_progress_reaches_total(ball):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=64, height=48)
+    seen = []
+    pointviz.render(ball, cam, spp=1, progress=lambda d, t: seen.append((d, t)))
+    assert seen[-1][0] == seen[-1][1] > 0
+
+
+def test_save_png_8_and_16_bit_and_refuse_overwrite(ball, tmp_path):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=48, height=32)
+    frame = pointviz.render(ball, cam, spp=1)
+    p8 = frame.save(tmp_path / "a.png")
+    assert np.array_equal(np.asarray(Image.open(p8)), frame.to_srgb8())
+    p16 = frame.save(tmp_path / "b.png", bits=16)
+    img16 = np.asarray(Image.open(p16))  # Pillow reads 48-bit RGB PNGs as 8-bit: compare
+    assert img16.shape[:2] == (32, 48)
+    before = p8.read_bytes()
+    with pytest.raises(FileExistsError):
+        frame.save(p8)
+    assert p8.read_bytes() == before
+    assert not list(tmp_path.glob("*.part"))
+
+
+def test_sixteen_bit_png_round_trip(tmp_path):
+    from pointviz.imageio import encode_png
+
+    px = (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000)
+    (tmp_path / "x.png").write_bytes(encode_png(px))
+    vtk = pytest.importorskip("vtk", reason="VTK's PNG reader is the independent 16-bit decoder")
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    reader = vtk.vtkPNGReader()
+    reader.SetFileName(str(tmp_path / "x.png"))
+    reader.Update()
+    img = reader.GetOutput()
+    arr = vtk_to_numpy(img.GetPointData().GetScalars()).reshape(4, 5, 3)[::-1]  # VTK is bottom-up
+    assert arr.dtype == np.uint16
+    assert np.array_equal(arr, px)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"spp": 0}, "spp"),
+    ({"reflections": -1}, "reflections"),
+    ({"lod_pixels": float("nan")}, "lod_pixels"),
+    ({"threads": 0}, "threads"),
+    ({"cancel": 3}, "cancel"),
+])
+def test_bad_render_arguments_are_named(ball, kwargs, message):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=8, height=8)
+    with pytest.raises(InputError, match=message):
+        pointviz.render(ball, cam, **kwargs)
+
+
+def test_bad_scene_arguments_are_named(ball):
+    with pytest.raises(InputError, match="ground"):
+        Scene(ball, ground="lava")
+    with pytest.raises(InputError, match="material.mirror"):
+        Material(mirror=2.0)
+    with pytest.raises(InputError, match="materials"):
+        Scene([ball, ball], materials=[Material()])
+    with pytest.raises(InputError, match="camera"):
+        pointviz.render(ball, None)
+
+
+def test_cli_render_and_errors(tmp_path, capsys):
+    from pointviz.cli import main
+
+    out = tmp_path / "demo.png"
+    assert main(["render", "demo", "-o", str(out), "--width", "64", "--spp", "1"]) == 0
+    assert Image.open(out).size == (64, 40)
+    assert main(["render", "demo", "-o", str(out), "--width", "64"]) == 2  # exists
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0]
+    assert main(["render", str(tmp_path / "missing.ply"), "-o", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.ply" in err[0]
+    assert main(["render", "demo", "-o", str(tmp_path / "y.png"), "--light", "0,0,0"]) == 2
