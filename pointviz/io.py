@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import struct
 import warnings
 from pathlib import Path
 
@@ -61,6 +62,20 @@ _PLY_SIZES = {
 
 # Largest PLY header we accept before deciding the file is not a PLY file.
 _PLY_MAX_HEADER = 1 << 20
+
+# A binary PLY whose first data bytes are all ASCII number characters is really an ASCII file
+# with a wrong format line. Binary floats almost never consist only of these bytes: 64 such bytes
+# in a row occur by chance with probability below (26/256)^64.
+_PLY_TEXT_BYTES = b"0123456789+-.eEnaNAifIF \t\r\n"
+_PLY_TEXT_PROBE = 4096
+_PLY_TEXT_MIN = 64
+
+# LAS public header: the 1.0-1.2 size (fields up to the point count); each VLR header is 54 bytes.
+_LAS_HEADER_MIN = 227
+_LAS_VLR_HEADER = 54
+
+# Largest PCD header (text lines before DATA) we accept.
+_PCD_MAX_HEADER = 1 << 16
 
 
 def load(path, *, sample=None, estimate=True, **kw) -> PointCloud:
@@ -317,7 +332,10 @@ def _ply_header(path: Path) -> dict:
             if f[0] == "format":
                 fmt = f[1]
             elif f[0] == "element":
-                elements.append((f[1], int(f[2]), []))
+                count = int(f[2])
+                if count < 0:
+                    raise ValueError(f"negative element count {count}")
+                elements.append((f[1], count, []))
             elif f[0] == "property":
                 if f[1] == "list":
                     elements[-1][2].append((f[4], ("list", f[2], f[3])))
@@ -335,19 +353,35 @@ def _ply_header(path: Path) -> dict:
 
 
 def _check_ply_complete(path: Path, header: dict) -> None:
-    """Raise if the file is too short for the elements its header declares (truncated)."""
+    """Raise if the data does not match the header: truncated, miscounted or the wrong format."""
     elements = header["elements"]
+    size = path.stat().st_size
     if header["format"] == "ascii":
+        rows = sum(count for _, count, _ in elements)
+        # cheap bound first: every data line takes at least two bytes ("0\n")
+        if 2 * rows > size - header["header_bytes"] + 1:
+            raise FileFormatError(
+                f"{path}: truncated PLY: the header declares {rows} data lines, the file has "
+                f"only {size - header['header_bytes']} bytes of data"
+            )
         with open(path, "rb") as fh:
             fh.seek(header["header_bytes"])
             data = fh.read()
-        rows = sum(count for _, count, _ in elements)
         have = data.count(b"\n") + (0 if data.endswith(b"\n") or not data else 1)
         if have < rows:
             raise FileFormatError(
                 f"{path}: truncated PLY: the header declares {rows} data lines, the file has {have}"
             )
+        _check_ply_ascii_rows(path, data, elements)
         return
+    with open(path, "rb") as fh:
+        fh.seek(header["header_bytes"])
+        probe = fh.read(_PLY_TEXT_PROBE)
+    if len(probe) >= _PLY_TEXT_MIN and not probe.translate(None, _PLY_TEXT_BYTES) and b"\n" in probe:
+        raise FileFormatError(
+            f"{path}: the PLY header says {header['format']} but the data is ASCII text "
+            "(the header's format line is wrong)"
+        )
     need = header["header_bytes"]
     for name, count, props in elements:
         row = 0
@@ -359,12 +393,59 @@ def _check_ply_complete(path: Path, header: dict) -> None:
             else:
                 row += _PLY_SIZES.get(ptype, 4)
         need += count * row
-    size = path.stat().st_size
     if size < need:
         raise FileFormatError(
             f"{path}: truncated PLY: the header's elements need at least {need} bytes, "
             f"the file has {size}"
         )
+    fixed = all(not isinstance(ptype, tuple) for _, _, props in elements for _, ptype in props)
+    if fixed and elements:
+        last_row = sum(_PLY_SIZES.get(ptype, 4) for _, ptype in elements[-1][2])
+        extra = size - need
+        if last_row > 0 and extra >= last_row:
+            raise FileFormatError(
+                f"{path}: the PLY header's counts are wrong: the data holds {extra} bytes "
+                f"(at least {extra // last_row} more '{elements[-1][0]}' rows) beyond the "
+                f"{sum(c for _, c, _ in elements)} rows the header declares"
+            )
+
+
+def _check_ply_ascii_rows(path: Path, data: bytes, elements) -> None:
+    """Every declared ASCII row must hold numbers, as many as its element's properties say."""
+    lines = data.splitlines()
+    start = 0
+    for name, count, props in elements:
+        rows = lines[start:start + count]
+        start += count
+        n_scalar = sum(1 for _, ptype in props if not isinstance(ptype, tuple))
+        has_list = n_scalar < len(props)
+        for k, line in enumerate(rows):
+            fields = line.split()
+            if len(fields) < n_scalar or (not has_list and len(fields) != n_scalar):
+                raise FileFormatError(
+                    f"{path}: malformed ASCII PLY: {name} row {k} has {len(fields)} values, "
+                    f"the header declares {len(props)} properties"
+                )
+        if not rows or has_list:
+            continue
+        try:
+            np.array(b" ".join(rows).split(), dtype=np.float64)
+        except ValueError:
+            bad = next(
+                (k, f) for k, line in enumerate(rows) for f in line.split() if not _is_number(f)
+            )
+            raise FileFormatError(
+                f"{path}: malformed ASCII PLY: {name} row {bad[0]} holds a non-number "
+                f"{bad[1].decode('latin-1')!r}"
+            ) from None
+
+
+def _is_number(token: bytes) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
 
 
 def _load_ply(path: Path, sample, rng) -> PointCloud:
@@ -418,8 +499,97 @@ def _mesh_from_o3d(path, mesh, sample, rng, merge=False) -> PointCloud:
     )
 
 
+def _pcd_header(path: Path) -> dict | None:
+    """Parse a PCD header; None if the file does not look like PCD (Open3D will then fail)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_PCD_MAX_HEADER)
+    fields: dict[str, list[str]] = {}
+    offset = 0
+    for raw in head.split(b"\n"):
+        offset += len(raw) + 1
+        line = raw.decode("latin-1").strip()
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        fields[key.upper()] = values
+        if key.upper() == "DATA":
+            fields["_offset"] = [str(offset)]
+            return fields
+    return None
+
+
+def _check_pcd(path: Path) -> None:
+    """Check a PCD header's counts against the file before Open3D allocates for them."""
+    h = _pcd_header(path)
+    if h is None:
+        raise FileFormatError(f"{path}: not a PCD file (no DATA line in the header)")
+
+    def ints(key, default=None):
+        if key not in h:
+            if default is None:
+                raise FileFormatError(f"{path}: PCD header has no {key} line")
+            return default
+        try:
+            vals = [int(v) for v in h[key]]
+        except ValueError:
+            raise FileFormatError(f"{path}: PCD header: {key} must be integers, got {h[key]}") from None
+        if any(v < 0 for v in vals):
+            raise FileFormatError(f"{path}: PCD header: negative {key} {h[key]}")
+        return vals
+
+    width, height = ints("WIDTH", [0])[0], ints("HEIGHT", [1])[0]
+    points = ints("POINTS", [width * height])[0]
+    nfields = len(h.get("FIELDS", []))
+    sizes = ints("SIZE", [4] * nfields)
+    counts = ints("COUNT", [1] * len(sizes))
+    if len(sizes) != len(counts):
+        raise FileFormatError(f"{path}: PCD header: SIZE and COUNT have different lengths")
+    if width * height != points:
+        raise FileFormatError(
+            f"{path}: PCD header: WIDTH x HEIGHT = {width * height} but POINTS = {points}"
+        )
+    row = sum(s * c for s, c in zip(sizes, counts))
+    mode = (h.get("DATA") or ["?"])[0].lower()
+    start = int(h["_offset"][0])
+    size = path.stat().st_size
+    if mode == "binary":
+        need = start + points * row
+        if size < need:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the header declares {points} points ({need} bytes), "
+                f"the file has {size}"
+            )
+    elif mode == "ascii":
+        if 2 * points > size - start + 1:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the header declares {points} points, the file has only "
+                f"{size - start} bytes of data"
+            )
+    elif mode == "binary_compressed":
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            sizes_raw = fh.read(8)
+        if len(sizes_raw) < 8:
+            raise FileFormatError(f"{path}: truncated PCD: no compressed data")
+        compressed, uncompressed = np.frombuffer(sizes_raw, dtype="<u4")
+        if int(uncompressed) != points * row:
+            raise FileFormatError(
+                f"{path}: corrupt PCD: the compressed block expands to {int(uncompressed)} bytes, "
+                f"the header's {points} points need {points * row}"
+            )
+        if start + 8 + int(compressed) > size:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the compressed block needs {int(compressed)} bytes, "
+                f"the file has {size - start - 8}"
+            )
+    else:
+        raise FileFormatError(f"{path}: PCD header: unknown DATA mode {mode!r}")
+
+
 def _load_o3d_points(path: Path, sample, rng) -> PointCloud:
     o3d = require("open3d", "io")
+    if path.suffix.lower() == ".pcd":
+        _check_pcd(path)
     with _quiet_open3d(o3d):
         pcd = o3d.io.read_point_cloud(
             str(path), remove_nan_points=False, remove_infinite_points=False
@@ -460,8 +630,47 @@ def _load_mesh(path: Path, sample, rng) -> PointCloud:
 # LiDAR
 
 
+def _check_las_size(path: Path, laspy) -> None:
+    """An uncompressed LAS file must hold the points its header declares (before allocating)."""
+    with open(path, "rb") as fh:
+        raw = fh.read(_LAS_HEADER_MIN)
+    if len(raw) < _LAS_HEADER_MIN or raw[:4] != b"LASF":
+        raise FileFormatError(f"{path}: not a LAS/LAZ file (no 'LASF' signature)")
+    header_size, offset, n_vlrs = struct.unpack_from("<HII", raw, 94)
+    if n_vlrs * _LAS_VLR_HEADER > max(0, offset - header_size):
+        raise FileFormatError(
+            f"{path}: corrupt LAS header: {n_vlrs} variable-length records do not fit in the "
+            f"{max(0, offset - header_size)} bytes before the points"
+        )
+    try:
+        with laspy.open(str(path)) as reader:
+            header = reader.header
+            compressed = bool(getattr(header, "are_points_compressed", False))
+            count = int(header.point_count)
+            record = int(header.point_format.size)
+            offset = int(header.offset_to_point_data)
+            evlrs = int(getattr(header, "number_of_evlrs", 0) or 0)
+    except Exception as exc:  # laspy raises LaspyException, ValueError, OSError, ...
+        raise FileFormatError(f"{path}: could not read the LAS/LAZ header ({exc or type(exc).__name__})") from exc
+    if compressed:
+        return
+    size = path.stat().st_size
+    need = offset + count * record
+    if size < need:
+        raise FileFormatError(
+            f"{path}: truncated LAS or wrong point count: the header declares {count} points of "
+            f"{record} bytes ({need} bytes), the file has {size}"
+        )
+    if evlrs == 0 and size - need >= record:
+        raise FileFormatError(
+            f"{path}: wrong point count in the LAS header: it declares {count} points, the file "
+            f"holds {(size - offset) // record}"
+        )
+
+
 def _load_las(path: Path, sample, rng) -> PointCloud:
     laspy = require("laspy", "io")
+    _check_las_size(path, laspy)
     try:
         las = laspy.read(str(path))
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError, ...
@@ -587,6 +796,11 @@ def _load_conf(path: Path, sample, rng) -> PointCloud:
     for scan_path, t, q, lineno in parse_conf(path):
         if not scan_path.exists():
             raise FileFormatError(f"{path}: line {lineno}: scan {scan_path} does not exist")
+        if scan_path.suffix.lower() in CONF_EXTENSIONS:
+            raise FileFormatError(
+                f"{path}: line {lineno}: scan {scan_path.name} is a .conf file; a registration "
+                "lists point files"
+            )
         try:
             scan = _load(scan_path)
         except FileFormatError as exc:
