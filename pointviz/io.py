@@ -34,6 +34,7 @@ from .errors import (
     PointvizError,
     require,
 )
+from .validate import check_points_fit
 
 POINT_EXTENSIONS = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf")
@@ -255,6 +256,8 @@ def _mesh_cloud(
 ):
     """A mesh's vertices (normals from the faces unless given) or ``sample`` surface points."""
     notes: list[str] = []
+    if sample is not None:
+        check_points_fit(sample, "sample")
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(vertices) == 0:
@@ -456,6 +459,7 @@ def _load_ply(path: Path, sample, rng) -> PointCloud:
     if nvert == 0:
         raise FileFormatError(f"{path}: the PLY file declares no vertices")
     _check_ply_complete(path, header)
+    check_points_fit(nvert, str(path))
     with _quiet_open3d(o3d):
         if counts.get("face", 0) > 0:
             mesh = o3d.io.read_triangle_mesh(str(path))
@@ -584,6 +588,7 @@ def _check_pcd(path: Path) -> None:
             )
     else:
         raise FileFormatError(f"{path}: PCD header: unknown DATA mode {mode!r}")
+    check_points_fit(points, str(path))
 
 
 def _load_o3d_points(path: Path, sample, rng) -> PointCloud:
@@ -652,7 +657,8 @@ def _check_las_size(path: Path, laspy) -> None:
             evlrs = int(getattr(header, "number_of_evlrs", 0) or 0)
     except Exception as exc:  # laspy raises LaspyException, ValueError, OSError, ...
         raise FileFormatError(f"{path}: could not read the LAS/LAZ header ({exc or type(exc).__name__})") from exc
-    if compressed:
+    if compressed:  # LAZ: sizes cannot be checked, memory can
+        check_points_fit(count, str(path))
         return
     size = path.stat().st_size
     need = offset + count * record
@@ -666,6 +672,7 @@ def _check_las_size(path: Path, laspy) -> None:
             f"{path}: wrong point count in the LAS header: it declares {count} points, the file "
             f"holds {(size - offset) // record}"
         )
+    check_points_fit(count, str(path))
 
 
 def _load_las(path: Path, sample, rng) -> PointCloud:
