@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import DRAGON_CONF, default_data_dir  # noqa: E402
+from common import DRAGON_CONF, default_data_dir
 
 #: An hf of this many 8-bit levels in one frame is a visible pop (about 3 % of full scale).
 POP_LEVELS = 8.0

@@ -110,7 +110,7 @@ class SceneSpec:
             opts = ss.trace_options()
             for k, v in obj.trace_fields.items():
                 setattr(opts, k, v)
-            ss._options = opts  # noqa: SLF001 - fields the constructor does not take
+            ss._options = opts  # fields the SurfelScene constructor does not take
             geoms.append(ss)
         scene = Scene(geoms, lights=self.lights,
                       ground="none" if self.ground is None else self.ground,

@@ -143,7 +143,7 @@ def _write_gif(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
         return 0
     if any(im.shape != images[0].shape for im in images):
         raise InputError("frames: every frame must have the same size")
-    duration = max(GIF_MIN_DURATION_MS, int(round(1000.0 / fps)))
+    duration = max(GIF_MIN_DURATION_MS, round(1000.0 / fps))
     iio.imwrite(tmp, np.stack(images), extension=".gif", plugin="pillow", duration=duration,
                 loop=0)
     return len(images)

@@ -10,7 +10,13 @@ on an existing cluster with ``--scheduler tcp://HOST:PORT``, or in this process 
 
 from __future__ import annotations
 
-from .common import ProgressBar, add_input_options, add_render_options, make_scene_and_camera, render_kwargs
+from .common import (
+    ProgressBar,
+    add_input_options,
+    add_render_options,
+    make_scene_and_camera,
+    render_kwargs,
+)
 
 #: PATH.json value that asks for an orbit instead of a file.
 ORBIT = "orbit"
