@@ -6,7 +6,8 @@ resident set over the build; peak RSS) and throughput of the full-view 400x400 p
 the ``full`` variant (LoD from the camera), next to Embree discs built and queried with the same
 threads (``rtcIntersect1`` per ray) on the same surfels and rays. Builds and queries of the two
 engines are interleaved and repeated ``--repeat`` times (median), so the ratios compare runs made
-moments apart on this shared machine.
+moments apart on this shared machine. Times are wall clock (``--clock``); the
+process CPU time is recorded too.
 
 Examples
 --------
@@ -68,10 +69,11 @@ def measure_size(model: pf.Model, args) -> dict:
         calls = {"pointviz": lambda: pf.core_cast(scene, rays, cam.pixel_angle, threads)}
         if discs is not None:
             calls["embree discs"] = lambda: discs.intersect(rays32, mode=1)
-        times = pf.interleaved(calls, args.repeat)
+        times = pf.interleaved(calls, args.repeat, args.clock)
         row = {"build_seconds": {k: float(np.median(v)) for k, v in builds.items() if v},
                "cast_seconds": {k: t["median"] for k, t in times.items()},
                "mrays": {k: len(rays) / t["median"] / 1e6 for k, t in times.items()},
+               "cpu_seconds": {k: t["cpu_median"] for k, t in times.items()},
                "bytes_per_surfel": scene.memory_bytes / model.n,
                "rss_growth_per_surfel": float(np.median(rss_growth)) / model.n,
                "depth": scene.depth, "box_depth": scene.box_depth}
@@ -132,6 +134,7 @@ def chart(rows: list, out_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     """Run the scaling sweep; print the table, write JSON and a PNG; return the exit code."""
     p = pf.base_parser(__doc__.split("\n\n")[0], "scaling")
+    p.set_defaults(clock="wall")  # throughput with 2 threads is a wall-time figure
     p.add_argument("--max", type=float, default=max(SIZES), help="largest size (default 20M)")
     p.add_argument("--threads-list", default="1,2", help="thread counts (default 1,2)")
     p.add_argument("--build-repeat", type=int, default=2,
