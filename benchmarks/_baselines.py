@@ -327,7 +327,7 @@ class EmbreeScene:
             self._lib.ed_release(self._h)
             self._h = None
 
-    def __enter__(self) -> EmbreeScene:
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc) -> None:

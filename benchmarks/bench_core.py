@@ -40,8 +40,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import common  # noqa: E402
-from _baselines import (  # noqa: E402
+import common
+from _baselines import (
     QUERY_MODES,
     BaselineUnavailable,
     EmbreeScene,
@@ -365,7 +365,7 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
     print(f"  rays: {len(rays_p):,} primary ({camera_source}) + {len(rays_p):,} random")
     record = {"name": model.name, "surfels": model.n, "diagonal": model.diagonal,
               "notes": model.notes, "camera": camera_source, "rays": len(rays_p),
-              "mesh_triangles": None if model.mesh_faces is None else int(len(model.mesh_faces)),
+              "mesh_triangles": None if model.mesh_faces is None else len(model.mesh_faces),
               "threads": {}, "rss_after_models": common.peak_rss_bytes()}
     tmax_sets: dict[str, np.ndarray] = {}
     for threads in args.threads:
@@ -460,9 +460,11 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                 o3d_scene = Open3DTriangles(model.mesh_vertices, model.mesh_faces, threads)
                 rec["open3d"] = {"build_s": o3d_scene.build_seconds}
                 for set_name, rays in ray_sets.items():
-                    sec_c, _ = common.time_best(lambda r=rays: o3d_scene.intersect(r), args.repeat)
+                    sec_c, _ = common.time_best(
+                        lambda r=rays, o=o3d_scene: o.intersect(r), args.repeat)
                     sec_o, _ = common.time_best(
-                        lambda r=rays, s=set_name: o3d_scene.occluded(r, tmax_sets[s]), args.repeat)
+                        lambda r=rays, t=tmax_sets[set_name], o=o3d_scene: o.occluded(r, t),
+                        args.repeat)
                     rec["open3d"][set_name] = {"closest_best": mrays(len(rays), sec_c),
                                                "occluded_best": mrays(len(rays), sec_o)}
                 del o3d_scene
