@@ -51,7 +51,8 @@ def main(argv=None) -> int:
     cloud = pointviz.load(conf)
     print(f"{conf.name}: {len(cloud.points):,} points")
     w, h = args.size
-    # seconds = frames / fps gives a keyframe on every frame; drop the last (= first) frame
+    # seconds = frames / fps puts a keyframe on every frame; the path is closed, so it has
+    # frames + 1 frames, the last repeating the first
     path = CameraPath.orbit(cloud, seconds=args.frames / args.fps, fps=args.fps, width=w,
                             height=h, easing="linear")
     scene = pointviz.Scene([cloud], ground="matte")
