@@ -148,10 +148,3 @@ def _write_gif(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
                 loop=0)
     return len(images)
 
-
-def count_frames(path) -> int:
-    """Number of frames a video decodes to (through imageio)."""
-    iio = require("imageio.v3", "video")
-    p = Path(path)
-    plugin = "FFMPEG" if p.suffix.lower() == ".mp4" else "pillow"
-    return sum(1 for _ in iio.imiter(p, plugin=plugin))
