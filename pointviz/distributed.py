@@ -228,7 +228,7 @@ def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -
 
 def _connect(scheduler, workers: int):
     """A Client (and the cluster to close, if we started one) for ``scheduler``."""
-    distributed = require("distributed", "dask")
+    distributed = require("distributed", "paths")
     if scheduler is None or scheduler == "local":
         if not (isinstance(workers, (int, np.integer)) and workers >= 1):
             raise InputError(f"workers: expected a positive integer, got {workers!r}")
@@ -284,7 +284,7 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
         ``workers`` (count at start), ``scene_builds`` (per worker pid), ``address`` and
         ``startup_seconds`` (connecting or starting the cluster, and scattering the scene).
     """
-    distributed = require("distributed", "dask")
+    distributed = require("distributed", "paths")
     render_kwargs = dict(render_kwargs)
     if render_kwargs.get("threads") is None and scheduler in (None, "local"):
         render_kwargs["threads"] = max(1, (os.cpu_count() or 1) // max(1, int(workers)))

@@ -48,7 +48,7 @@ def check_video_path(path, overwrite: bool = False) -> Path:
 
 def read_png(path) -> np.ndarray:
     """(h, w, 3) uint8 pixels of a PNG file (alpha dropped)."""
-    iio = require("imageio.v3", "video")
+    iio = require("imageio.v3", "paths")
     img = np.asarray(iio.imread(path))
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
@@ -110,7 +110,7 @@ def write_video(path, frames: Iterable, fps: float, *, overwrite: bool = False) 
 
 
 def _write_mp4(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
-    ffmpeg = require("imageio_ffmpeg", "video")
+    ffmpeg = require("imageio_ffmpeg", "paths")
     writer = None
     size = None
     count = 0
@@ -137,7 +137,7 @@ def _write_mp4(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
 
 
 def _write_gif(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
-    iio = require("imageio.v3", "video")
+    iio = require("imageio.v3", "paths")
     images = list(frames)
     if not images:
         return 0
