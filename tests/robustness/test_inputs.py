@@ -295,7 +295,7 @@ def test_invalid_path_json(tmp_path, mutate):
 
 
 def _cli(args, cwd):
-    proc = subprocess.run([sys.executable, "-m", "pointviz.cli", *args], cwd=cwd,
+    proc = subprocess.run([sys.executable, "-m", "pointviz.cli", *args], cwd=cwd, check=False,
                           capture_output=True, text=True, timeout=120)
     return proc.returncode, proc.stdout, proc.stderr
 
