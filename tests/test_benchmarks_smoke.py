@@ -18,8 +18,8 @@ import pytest
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 sys.path.insert(0, str(BENCHMARKS))
 
-import _baselines  # noqa: E402
-import common  # noqa: E402
+import _baselines
+import common
 
 # Relative tolerance of t between Embree (float32, its own operation order) and float64 brute force.
 T_RTOL = 1e-5
