@@ -34,7 +34,7 @@ from .errors import (
     PointvizError,
     require,
 )
-from .validate import check_points_fit
+from .validate import check_coordinates, check_points_fit
 
 POINT_EXTENSIONS = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 MESH_EXTENSIONS = (".obj", ".off", ".stl", ".glb", ".gltf")
@@ -77,6 +77,9 @@ _LAS_VLR_HEADER = 54
 
 # Largest PCD header (text lines before DATA) we accept.
 _PCD_MAX_HEADER = 1 << 16
+# Most values one PCD field may hold: descriptors reach a few hundred (VFH: 308); Open3D's reader
+# overflows (and crashes) on counts near 2^31.
+_PCD_MAX_COUNT = 1 << 16
 
 
 def load(path, *, sample=None, estimate=True, **kw) -> PointCloud:
@@ -233,6 +236,7 @@ def _point_cloud(path, points, normals=None, colors=None, *, sample=None, rng=No
     if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
         raise FileFormatError(f"{path}: no points could be read (empty or unparsable file)")
     keep = _finite_rows(path, points, notes)
+    check_coordinates(points, str(path))
     normals = _usable_normals(normals, keep, notes)
     fields = {"points": points, "normals": normals, "colors": colors, **extra}
     if keep is not None:
@@ -265,6 +269,7 @@ def _mesh_cloud(
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise FileFormatError(f"{path}: {bad} mesh vertices have NaN/inf coordinates")
+    check_coordinates(vertices, str(path))
     if merge:
         # OBJ/STL/glTF readers split a vertex wherever its texture coordinate or normal changes
         # (STL stores none at all): merge exact duplicates so each surface point is one surfel
@@ -546,8 +551,16 @@ def _check_pcd(path: Path) -> None:
     nfields = len(h.get("FIELDS", []))
     sizes = ints("SIZE", [4] * nfields)
     counts = ints("COUNT", [1] * len(sizes))
-    if len(sizes) != len(counts):
-        raise FileFormatError(f"{path}: PCD header: SIZE and COUNT have different lengths")
+    types = h.get("TYPE", ["F"] * len(sizes))
+    if not (len(sizes) == len(counts) == len(types) == nfields) or nfields == 0:
+        raise FileFormatError(
+            f"{path}: PCD header: FIELDS, SIZE, TYPE and COUNT must have the same, non-zero "
+            f"length, got {nfields}, {len(sizes)}, {len(types)} and {len(counts)}"
+        )
+    if any(sz not in (1, 2, 4, 8) for sz in sizes) or any(t.upper() not in "FIU" for t in types):
+        raise FileFormatError(f"{path}: PCD header: bad SIZE {sizes} or TYPE {types}")
+    if any(not 1 <= c <= _PCD_MAX_COUNT for c in counts):
+        raise FileFormatError(f"{path}: PCD header: COUNT values must be in 1..{_PCD_MAX_COUNT}, got {counts}")
     if width * height != points:
         raise FileFormatError(
             f"{path}: PCD header: WIDTH x HEIGHT = {width * height} but POINTS = {points}"
@@ -563,8 +576,8 @@ def _check_pcd(path: Path) -> None:
                 f"{path}: truncated PCD: the header declares {points} points ({need} bytes), "
                 f"the file has {size}"
             )
-    elif mode == "ascii":
-        if 2 * points > size - start + 1:
+    elif mode == "ascii":  # every value takes at least two bytes ("0 ")
+        if 2 * points * sum(counts) > size - start + 1:
             raise FileFormatError(
                 f"{path}: truncated PCD: the header declares {points} points, the file has only "
                 f"{size - start} bytes of data"
@@ -722,6 +735,7 @@ def _load_vtk(path: Path, sample, rng) -> PointCloud:
         raise FileFormatError(f"{path}: could not read the VTK file ({exc})") from exc
     if data is None or not isinstance(data, pv.DataSet) or data.n_points == 0:
         raise FileFormatError(f"{path}: no points could be read (empty or unparsable file)")
+    check_coordinates(np.asarray(data.points), str(path))
     if not np.isfinite(np.asarray(data.points)).all():
         notes: list[str] = []
         keep = _finite_rows(path, np.asarray(data.points, dtype=np.float64), notes)

@@ -18,6 +18,34 @@ from .errors import InputError
 BYTES_PER_POINT = 192
 
 
+#: Largest coordinate magnitude accepted from a file. float64 resolves 0.1 units up to about 1e15,
+#: so larger values are not measurements (a georeferenced coordinate in millimetres is ~1e10);
+#: and squared distances of values beyond ~1e154 overflow in neighbour searches.
+MAX_ABS_COORDINATE = 1e15
+
+
+def check_coordinates(points, what: str) -> None:
+    """Raise :class:`InputError` if finite coordinates exceed :data:`MAX_ABS_COORDINATE`.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        Positions; non-finite rows are ignored (callers drop or reject them separately).
+    what : str
+        Names the source in the message.
+    """
+    import numpy as np
+
+    a = np.abs(np.asarray(points, dtype=np.float64))
+    a = a[np.isfinite(a).all(axis=1)] if a.ndim == 2 else a[np.isfinite(a)]
+    if a.size and a.max() > MAX_ABS_COORDINATE:
+        rows = np.flatnonzero((a > MAX_ABS_COORDINATE).any(axis=-1)) if a.ndim == 2 else []
+        raise InputError(
+            f"{what}: {len(rows)} points have coordinates beyond +-{MAX_ABS_COORDINATE:g} "
+            f"(largest {a.max():.3g}): not a plausible measurement (corrupt file or wrong scale?)"
+        )
+
+
 def available_memory_bytes() -> int | None:
     """Memory the process may still use: ``MemAvailable`` from /proc/meminfo, else total RAM.
 
