@@ -11,6 +11,8 @@ How the work is split
   trees from it and keeps them *on that object* (:meth:`SceneSpec.scene`), so the tree is built
   once per worker process and reused by every later frame on it. A worker that joins later
   (e.g. restarted by its nanny) fetches the spec from a peer, once.
+* The spec records the client's pointviz version and a digest of its compiled core; a worker
+  running another build refuses (its frames would not match).
 * Workers return PNG bytes; the client writes the files, so workers need no shared file system
   and the resume logic of :func:`pointviz.render_path` stays on one machine.
 
@@ -66,6 +68,7 @@ class SceneSpec:
     """
 
     key: str
+    core: str
     objects: list
     lights: list | None
     ground: object
@@ -101,6 +104,12 @@ class SceneSpec:
         from .scene import Scene
         from .surfels import SurfelScene
 
+        here = core_identity()
+        if here != self.core:
+            raise PointvizError(
+                f"worker pid {os.getpid()}: its pointviz core ({here}) differs from the client's "
+                f"({self.core}); frames would not match a serial render: install the same "
+                f"pointviz build on every worker")
         geoms = []
         for obj in self.objects:
             if obj.surfel_kwargs is None:
@@ -121,6 +130,15 @@ class SceneSpec:
             if self.objects[i].surfel_kwargs is not None:
                 scene.surfel_scene(i)  # build now, so the first frame's time is the render's
         return scene
+
+
+def core_identity() -> str:
+    """pointviz version and a digest of the compiled core's file: workers must match the client."""
+    from . import __version__, _core
+
+    with open(_core.__file__, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()[:16]
+    return f"{__version__}+{digest}"
 
 
 def _hash_array(h, arr) -> None:
@@ -195,7 +213,7 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
     rest = (scene.lights, scene.ground, scene.background, tuple(float(v) for v in scene.up),
             scene.ambient)
     h.update(repr(rest).encode())
-    return SceneSpec(h.hexdigest(), objects, scene.lights, scene.ground, scene.background,
+    return SceneSpec(h.hexdigest(), core_identity(), objects, scene.lights, scene.ground, scene.background,
                      tuple(float(v) for v in scene.up), float(scene.ambient),
                      _built=scene)
 

@@ -131,3 +131,12 @@ def test_killed_worker_still_finishes(scene, serial_frames, tmp_path):
         cluster.close()
     render_path(scene, path, tmp_path / "serial", progress=False, **SETTINGS)
     assert frames_of(tmp_path / "dist") == frames_of(tmp_path / "serial")
+
+
+def test_worker_with_another_core_build_refuses(scene, path):
+    from pointviz.errors import PointvizError
+
+    spec = pickle.loads(pickle.dumps(scene_spec(scene)))
+    spec.core = "0.0.0+another-build"
+    with pytest.raises(PointvizError, match="differs from the client's"):
+        render_frame_task(spec, path.cameras()[0].to_dict(), SETTINGS)
