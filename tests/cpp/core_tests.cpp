@@ -205,7 +205,7 @@ Cloud random_sphere_cloud(std::mt19937_64 &g, size_t n, double scale, const doub
 
 void test_random_clouds_match_brute_force() {
     const double zero[3] = {0, 0, 0};
-    const uint32_t leaves[] = {1, 8, 255};
+    const uint32_t leaves[] = {1, 8, 31};
     const uint32_t boxes[] = {0, 3, 255};
     for (int seed = 0; seed < 6; ++seed) {
         std::mt19937_64 g(1000 + seed);
