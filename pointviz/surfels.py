@@ -104,7 +104,11 @@ class SurfelScene:
     window : float
         Depth window of the interpolation, in radii of the nearest disk.
     leaf_size : int
-        Most surfels per leaf (1..255).
+        Most surfels per leaf (1..31).
+    slabs : bool
+        Cut each node's sphere by the slab around its mean plane (beyond the paper; much
+        tighter for the nearly flat patches low in the tree). ``False`` reproduces the paper's
+        plain spheres.
     lod_criterion : {"size", "deviation"}
         When LoD stops descending: the paper's projected sphere size, or the projected deviation
         of the node from its mean plane (flat regions stop earlier).
@@ -118,7 +122,7 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
-                 lod_criterion: str = "size",
+                 lod_criterion: str = "size", slabs: bool = True,
                  threads: int | None = None, origin=None):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
@@ -132,8 +136,8 @@ class SurfelScene:
             raise InputError(f"window: must be a non-negative number, got {window!r}")
         if lod_criterion not in ("size", "deviation"):
             raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
-        if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 255):
-            raise InputError(f"leaf_size: must be an integer in 1..255, got {leaf_size!r}")
+        if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 31):
+            raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
         self.threads = _check_threads(threads)
         self.cloud = cloud
         self.variant = variant
@@ -178,6 +182,7 @@ class SurfelScene:
         self._options.window = float(window)
         self._options.interpolation = getattr(_core.Interpolation, interpolation)
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
+        self._options.slabs = bool(slabs)
         self.last_stats: dict = {}
 
     # -- properties -------------------------------------------------------------------------
@@ -235,7 +240,7 @@ class SurfelScene:
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent"):
+                  "lod_criterion", "lod_max_extent", "slabs"):
             setattr(o, k, getattr(self._options, k))
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):

@@ -187,8 +187,9 @@ def test_variants_agree_without_lod(sphere20k, rng):
     ref = SurfelScene(sphere20k, variant="kdtree").cast_rays(rays)
     for variant in VARIANTS[1:]:
         out = SurfelScene(sphere20k, variant=variant).cast_rays(rays)
-        np.testing.assert_array_equal(out["t_hit"], ref["t_hit"])
-        np.testing.assert_array_equal(out["normals"], ref["normals"])
+        # the same disks are blended; only the summation order (visit order) may differ
+        np.testing.assert_allclose(out["t_hit"], ref["t_hit"], rtol=1e-6)
+        np.testing.assert_allclose(out["normals"], ref["normals"], atol=1e-6)
 
 
 def test_results_do_not_depend_on_threads(sphere20k, rng):

@@ -219,6 +219,7 @@ NB_MODULE(_core, m) {
         .def_rw("box_depth", &TraceOptions::box_depth)
         .def_rw("interpolation", &TraceOptions::interp)
         .def_rw("window", &TraceOptions::window)
+        .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
         .def_rw("lod_max_extent", &TraceOptions::lod_max_extent);
 
@@ -343,12 +344,12 @@ NB_MODULE(_core, m) {
             auto aidx = new_array<uint32_t>({n}, &idx);
             for (size_t i = 0; i < n; ++i) {
                 const Node &nd = t.nodes()[i];
-                Vec3 a = oct_decode(nd.normal);
+                Vec3 a = normalize(nd.axis());
                 for (int k = 0; k < 3; ++k) c[3 * i + k] = nd.c[k], nn[3 * i + k] = a[k];
                 r[i] = nd.radius;
-                cone[i] = nd.cone;
+                cone[i] = nd.cone();
                 cnt[i] = nd.count();
-                idx[i] = nd.index;
+                idx[i] = nd.index();
             }
             size_t nb_ = t.boxes().size();
             float *bx;

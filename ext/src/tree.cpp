@@ -11,9 +11,6 @@
 namespace pointviz {
 namespace {
 
-/// Largest cloud the 32-bit indices of the layout can address (with margin for flags).
-constexpr size_t kMaxSurfels = size_t(1) << 31;
-
 /// Half-open range of the index array that a node owns during the build.
 struct Range {
     uint32_t b, e;
@@ -32,17 +29,24 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
     auto t0 = std::chrono::steady_clock::now();
     const size_t n = in.n;
     if (n == 0) throw std::invalid_argument("cannot build a tree of zero surfels");
-    if (n >= kMaxSurfels) throw std::length_error("too many surfels for one tree (limit 2^31)");
-    const uint32_t leaf = std::clamp<uint32_t>(opt.leaf_size, 1u, 255u);
+    if (n >= kMaxTreeSurfels)
+        throw std::length_error("too many surfels for one tree (limit 2^27 = 134,217,728)");
+    const uint32_t leaf = std::clamp<uint32_t>(opt.leaf_size, 1u, kMaxLeafSize);
     const int threads = resolve_threads(opt.threads);
     for (int k = 0; k < 3; ++k) origin_[k] = origin[k];
 
-    // Local float positions.
-    std::vector<Vec3> pos(n);
+    // Local float positions with their input index: partitioning these 16-byte items in place
+    // keeps the build's memory access sequential.
+    struct Item {
+        Vec3 p;
+        uint32_t i;
+    };
+    std::vector<Item> items(n);
     parallel_for(n, 1 << 16, threads, [&](size_t b, size_t e, int) {
         for (size_t i = b; i < e; ++i) {
             const double *p = in.points + 3 * i;
-            pos[i] = {float(p[0] - origin[0]), float(p[1] - origin[1]), float(p[2] - origin[2])};
+            items[i] = {{float(p[0] - origin[0]), float(p[1] - origin[1]), float(p[2] - origin[2])},
+                        uint32_t(i)};
         }
     });
 
@@ -50,8 +54,6 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
     // the centres' box. The median (not the spatial midpoint) bounds the depth by
     // log2(n / leaf) + 1 whatever the distribution (duplicates, outliers), so traversal can use
     // a fixed-size stack.
-    std::vector<uint32_t> idx(n);
-    std::iota(idx.begin(), idx.end(), 0u);
     std::vector<Range> ranges{{0u, uint32_t(n)}};
     std::vector<uint32_t> first_child{0u};
     level_start_ = {0u};
@@ -75,8 +77,8 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 if (r.size() <= leaf) continue;
                 Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
                 for (uint32_t k = r.b; k < r.e; ++k) {
-                    lo = vmin(lo, pos[idx[k]]);
-                    hi = vmax(hi, pos[idx[k]]);
+                    lo = vmin(lo, items[k].p);
+                    hi = vmax(hi, items[k].p);
                 }
                 Vec3 ext = hi - lo;
                 int axis = ext.x >= ext.y ? (ext.x >= ext.z ? 0 : 2) : (ext.y >= ext.z ? 1 : 2);
@@ -84,8 +86,8 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 // every leaf but one is full and the tree has ceil(n / leaf) leaves.
                 uint32_t leaves = (r.size() + leaf - 1) / leaf;
                 uint32_t mid = r.b + std::min(r.size() - 1, ((leaves + 1) / 2) * leaf);
-                std::nth_element(idx.begin() + r.b, idx.begin() + mid, idx.begin() + r.e,
-                                 [&](uint32_t a, uint32_t c) { return pos[a][axis] < pos[c][axis]; });
+                std::nth_element(items.begin() + r.b, items.begin() + mid, items.begin() + r.e,
+                                 [axis](const Item &a, const Item &c) { return a.p[axis] < c.p[axis]; });
                 uint32_t fc = first_child[i];
                 ranges[fc] = {r.b, mid};
                 ranges[fc + 1] = {mid, r.e};
@@ -100,20 +102,21 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
 
     // Surfels in leaf order.
     surfels_.resize(n);
-    order_ = idx;
+    order_.resize(n);
     parallel_for(n, 1 << 16, threads, [&](size_t b, size_t e, int) {
         for (size_t k = b; k < e; ++k) {
-            uint32_t i = idx[k];
+            uint32_t i = items[k].i;
+            order_[k] = i;
             const float *nn = in.normals + 3 * i;
             Surfel &s = surfels_[k];
-            s.p = pos[i];
+            s.p = items[k].p;
             s.r = in.radii[i];
             s.n = normalize(Vec3{nn[0], nn[1], nn[2]});
             s.rgba = in.colors ? pack_rgb(in.colors[3 * i], in.colors[3 * i + 1], in.colors[3 * i + 2])
                                : 0xffffffffu;
         }
     });
-    std::vector<Vec3>().swap(pos);
+    std::vector<Item>().swap(items);
 
     // Attributes, bottom-up.
     nodes_.resize(n_nodes);
@@ -144,8 +147,7 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                     }
                     c = c / float(r.size());
                     boxes[i] = bx;
-                    nd.index = r.b;
-                    nd.rgb_count = r.size() << 24;
+                    nd.index_count = r.b | (r.size() << 27);
                 } else {
                     uint32_t fc = first_child[i];
                     float w0 = float(ranges[fc].size()), w1 = float(ranges[fc + 1].size());
@@ -153,31 +155,47 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                     sm.nsum = sums[fc].nsum + sums[fc + 1].nsum;
                     sm.csum = sums[fc].csum + sums[fc + 1].csum;
                     boxes[i] = {vmin(boxes[fc].lo, boxes[fc + 1].lo), vmax(boxes[fc].hi, boxes[fc + 1].hi)};
-                    nd.index = fc;
-                    nd.rgb_count = 0;
+                    nd.index_count = fc;
                 }
                 nd.c = c;
                 float nlen = length(sm.nsum);
                 Vec3 axis = nlen > 0.f ? sm.nsum / nlen : Vec3{0, 0, 1};
                 // A mean normal this short means opposite normals cancel: no useful cone.
                 bool degenerate = nlen < 1e-3f * float(r.size());
-                float radius = 0.f, theta = 0.f;
-                // Exact sphere and cone from the subtree's own surfels: O(n) per level, and
-                // composing children's bounds instead would loosen the top spheres 2-3x.
-                float cosmin = 1.f;
+                // Exact sphere, cone and slab from the subtree's own surfels, in one pass:
+                // O(n) per level. Cone and slab are measured against the stored (quantised)
+                // axis, the one traversal uses. A disk (p, n, r) reaches
+                // |dot(p - c, a)| + r * sqrt(|a|^2 - dot(n, a)^2) off the plane along a.
+                for (int k = 0; k < 3; ++k) nd.axis_q[k] = quantize_axis(axis[k]);
+                const Vec3 aq = nd.axis();
+                const float aq2 = length2(aq);
+                float radius = 0.f, cosmin = 1.f, h = 0.f;
                 for (uint32_t k = r.b; k < r.e; ++k) {
                     const Surfel &s = surfels_[k];
-                    radius = std::max(radius, length(s.p - c) + s.r);
-                    cosmin = std::min(cosmin, dot(s.n, axis));
+                    Vec3 pc = s.p - c;
+                    float na = dot(s.n, aq);
+                    radius = std::max(radius, length(pc) + s.r);
+                    cosmin = std::min(cosmin, na);
+                    h = std::max(h, std::fabs(dot(pc, aq)) + s.r * std::sqrt(std::max(0.f, aq2 - na * na)));
                 }
-                theta = std::acos(std::clamp(cosmin, -1.f, 1.f));
-                if (degenerate) theta = 3.1415927f;
+                float theta = degenerate ? 3.1415927f
+                                         : std::acos(std::clamp(cosmin / std::sqrt(aq2), -1.f, 1.f));
                 // Rounding: radius from float math; grow by a relative ulp-scale margin.
                 nd.radius = radius * (1.f + 1e-6f) + 1e-7f;
-                nd.normal = oct_encode(axis);
-                nd.cone = theta >= 1.5707963f ? kConeNever : std::sin(theta) + kConeSlack;
+                if (theta >= 1.5707963f) {
+                    nd.cone_q = kConeNeverQ;
+                } else {
+                    float q = std::ceil((std::sin(theta) + kConeSlack) * kConeScale);
+                    nd.cone_q = uint16_t(std::min(q, float(kConeNeverQ - 1)));
+                }
                 Vec3 mc = sm.csum / float(r.size());
-                nd.rgb_count |= pack_rgb(mc.x, mc.y, mc.z) & 0xffffffu;
+                uint32_t slab_q = kNoSlab;
+                if (!degenerate && radius > 0.f) {
+                    // Rounding margin: float error of the dot products, relative to the radius.
+                    float q = std::ceil((h * (1.f + 1e-5f) + 1e-6f * radius) / radius * 255.f);
+                    slab_q = uint32_t(std::min(q, float(kNoSlab)));
+                }
+                nd.rgb_slab = (pack_rgb(mc.x, mc.y, mc.z) & 0xffffffu) | (slab_q << 24);
             }
         });
     }

@@ -27,11 +27,13 @@ struct DiskHit {
     float u2;      ///< (distance from the centre / radius)^2, in [0, 1]
 };
 
-/// Oriented-disk intersection. Cheapest rejection first: parallel rays, then the t-interval,
-/// then the radius. `facing` is dot(d, n); callers use its sign for culling.
-inline bool intersect_disk(const Ray &ray, Vec3 p, Vec3 n, float r, float tmax, float &facing,
-                           DiskHit &hit) {
+/// Oriented-disk intersection. Cheapest rejection first: culling and parallel rays, then the
+/// t-interval, then the radius. `facing` is dot(d, n); with `cull`, disks facing away from the
+/// ray (facing > 0) are skipped before any division.
+inline bool intersect_disk(const Ray &ray, Vec3 p, Vec3 n, float r, float tmax, bool cull,
+                           float &facing, DiskHit &hit) {
     facing = dot(ray.d, n);
+    if (cull && facing > 0.f) return false;
     if (std::fabs(facing) < kParallelCos) return false;
     float t = dot(p - ray.o, n) / facing;
     if (!(t >= ray.tmin && t <= tmax)) return false;

@@ -32,6 +32,7 @@ struct TraceOptions {
     float lod_pixels = 1.f;   ///< LoD threshold: sphere diameter in units of the ray footprint
     bool cull = true;         ///< back-face culling with normal cones (closest-hit queries only)
     uint32_t box_depth = 0;   ///< nodes shallower than this are bounded by boxes, the rest by spheres
+    bool slabs = true;        ///< intersect each sphere with its node's mean-plane slab (beyond the paper)
     Interpolation interp = Interpolation::Smooth;
     float window = 1.f;       ///< depth window, in radii of the nearest disk, measured along its normal
     LodCriterion lod_criterion = LodCriterion::Size;
@@ -45,7 +46,7 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
     // A node's disk stands in for a curved patch badly in proportion to its normal spread;
     // kFlatFloor keeps a perfectly flat node from counting as zero deviation.
     constexpr float kFlatFloor = 0.05f;
-    const float spread = std::min(1.f, std::max(nd.cone, kFlatFloor));
+    const float spread = std::min(1.f, std::max(nd.cone(), kFlatFloor));
     return size * spread <= fp && size <= opt.lod_max_extent * fp;
 }
 
@@ -153,6 +154,17 @@ inline float enter_node(const SurfelTree &tree, uint32_t i, uint32_t depth, cons
     return enter_sphere(nd.c, nd.radius, ray.o, ray.d, ray.tmin, tfar);
 }
 
+/// The same with each sphere cut by its node's slab.
+template <bool kSlabs>
+inline float enter_bound(const SurfelTree &tree, uint32_t i, uint32_t depth, const Ray &ray,
+                         Vec3 inv_d, float tfar, uint32_t box_depth) {
+    if (depth < box_depth && i < tree.boxes().size())
+        return enter_box(tree.boxes()[i], ray.o, inv_d, ray.tmin, tfar);
+    if constexpr (kSlabs) return enter_sphere_slab(tree.nodes()[i], ray.o, ray.d, ray.tmin, tfar);
+    const Node &nd = tree.nodes()[i];
+    return enter_sphere(nd.c, nd.radius, ray.o, ray.d, ray.tmin, tfar);
+}
+
 }  // namespace detail
 
 /// The traversal loop shared by every query (paper Figure 3b).
@@ -160,9 +172,9 @@ inline float enter_node(const SurfelTree &tree, uint32_t i, uint32_t depth, cons
 /// `cull` asks for back-face culling: disks facing away from the ray are skipped, and so are
 /// subtrees whose normal cone faces away entirely; once a cone faces the ray entirely its
 /// subtree is not tested again.
-template <class Policy, class Stats>
-void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
-              Policy &policy, Stats &stats) {
+template <bool kSlabs, class Policy, class Stats>
+void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
+                   Policy &policy, Stats &stats) {
     using namespace detail;
     const auto &nodes = tree.nodes();
     const auto &surfels = tree.surfels();
@@ -172,73 +184,88 @@ void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, b
 
     StackEntry stack[kStackSize];
     int sp = 0;
-    float t_root = enter_node(tree, 0, 0, ray, inv_d, policy.tfar(), box_depth);
+    auto enter = enter_bound<kSlabs>;
+    float t_root = enter(tree, 0, 0, ray, inv_d, policy.tfar(), box_depth);
     if (t_root == kInf) return;
-    stack[sp++] = {0u, t_root, 0, uint16_t(cull)};
+    // The current node; the near child of an interior node is taken next without a push.
+    StackEntry e{0u, t_root, 0, uint16_t(cull)};
 
-    while (sp > 0) {
-        StackEntry e = stack[--sp];
-        if (e.t > policy.tfar()) continue;
+    for (;;) {
+        bool descend = false;
         const Node &nd = nodes[e.node];
         stats.node(e.depth);
         bool sub_cull = e.cull != 0;
-        if (sub_cull) {
-            float c = dot(oct_decode(nd.normal), ray.d);
-            if (c > nd.cone) continue;       // every normal faces away
-            if (c < -nd.cone) sub_cull = false;  // every normal faces the ray
+        bool skip = false;
+        if (sub_cull && nd.has_cone()) {
+            float c = dot(nd.axis(), ray.d), s = nd.cone();
+            if (c > s) skip = true;             // every normal faces away
+            else if (c < -s) sub_cull = false;  // every normal faces the ray
         }
-        if (nd.is_leaf()) {
-            uint32_t b = nd.index, cnt = nd.count();
+        if (skip) {
+        } else if (nd.is_leaf()) {
+            uint32_t b = nd.index(), cnt = nd.count();
             for (uint32_t k = b; k < b + cnt; ++k) {
                 const Surfel &s = surfels[k];
                 stats.disk();
                 float facing;
                 DiskHit h;
-                if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), facing, h)) continue;
-                if (sub_cull && facing > 0.f) continue;
+                if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), sub_cull, facing, h)) continue;
                 if (policy.add({h.t, h.u2, facing, s.r, k})) return;
             }
-            continue;
-        }
-        const uint32_t c0 = nd.index;
-        if (lod) {
-            float t2 = dot(nd.c - ray.o, ray.d);
-            if (t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
+        } else {
+            const uint32_t c0 = nd.index();
+            float t2 = lod ? dot(nd.c - ray.o, ray.d) : 0.f;
+            if (lod && t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
                 // Small enough: intersect the children as disks and let the policy blend them.
                 for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
                     const Node &cn = nodes[ch];
                     stats.disk();
-                    Vec3 cnorm = oct_decode(cn.normal);
-                    if (sub_cull && dot(cnorm, ray.d) > cn.cone) continue;
+                    Vec3 cnorm = normalize(cn.axis());
+                    if (sub_cull && dot(cnorm, ray.d) > cn.cone()) continue;
                     float r = cn.radius * kLodDiskScale;
                     float facing;
                     DiskHit h;
-                    if (!intersect_disk(ray, cn.c, cnorm, r, policy.tfar(), facing, h)) continue;
-                    if (sub_cull && facing > 0.f) continue;
+                    if (!intersect_disk(ray, cn.c, cnorm, r, policy.tfar(), sub_cull, facing, h)) continue;
                     if (policy.add({h.t, h.u2, facing, r, ch | kNodeFlag})) return;
                 }
-                continue;
+            } else {
+                const uint16_t cd = uint16_t(e.depth + 1);
+                const uint16_t cf = uint16_t(sub_cull);
+                float ta = enter(tree, c0, cd, ray, inv_d, policy.tfar(), box_depth);
+                float tb = enter(tree, c0 + 1, cd, ray, inv_d, policy.tfar(), box_depth);
+                if (ta != kInf || tb != kInf) {
+                    descend = true;
+                    if (ta <= tb) {
+                        if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
+                        e = {c0, ta, cd, cf};
+                    } else {
+                        if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
+                        e = {c0 + 1, tb, cd, cf};
+                    }
+                }
             }
         }
-        const uint16_t cd = uint16_t(e.depth + 1);
-        float ta = enter_node(tree, c0, cd, ray, inv_d, policy.tfar(), box_depth);
-        float tb = enter_node(tree, c0 + 1, cd, ray, inv_d, policy.tfar(), box_depth);
-        uint16_t cf = uint16_t(sub_cull);
-        if (ta <= tb) {
-            if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
-            if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
-        } else {
-            if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
-            stack[sp++] = {c0 + 1, tb, cd, cf};
-        }
+        if (descend) continue;
+        // Pop the nearest pending subtree that can still hold a closer hit.
+        do {
+            if (sp == 0) return;
+            e = stack[--sp];
+        } while (e.t > policy.tfar());
     }
+}
+
+template <class Policy, class Stats>
+void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
+              Policy &policy, Stats &stats) {
+    if (opt.slabs) traverse_impl<true>(tree, ray, opt, cull, policy, stats);
+    else traverse_impl<false>(tree, ray, opt, cull, policy, stats);
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.
 inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
     if (ref & detail::kNodeFlag) {
         const Node &nd = tree.nodes()[ref & ~detail::kNodeFlag];
-        n = oct_decode(nd.normal);
+        n = normalize(nd.axis());
         uint32_t c = nd.rgba();
         color = {channel(c, 0), channel(c, 1), channel(c, 2)};
     } else {

@@ -12,7 +12,7 @@ namespace pointviz {
 
 /// How to build a tree.
 struct BuildOptions {
-    uint32_t leaf_size = 8;   ///< most surfels in a leaf (1..255)
+    uint32_t leaf_size = 8;   ///< most surfels in a leaf (1..31)
     uint32_t box_depth = 0;   ///< nodes shallower than this get an axis-aligned box
     int threads = 0;          ///< 0: all cores
 };
