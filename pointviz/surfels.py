@@ -140,6 +140,11 @@ class SurfelScene:
             raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
         self.threads = _check_threads(threads)
         self.cloud = cloud
+        # Everything needed to build the same tree again (pickling, distributed workers).
+        self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
+                                 box_depth=box_depth, lod_pixels=lod_pixels, window=window,
+                                 leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
+                                 threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -184,6 +189,20 @@ class SurfelScene:
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
         self.last_stats: dict = {}
+
+    def __reduce__(self):
+        """Pickle as the cloud and the settings: the tree is rebuilt (deterministically) on load,
+        so a scene sent to another process traces exactly the same hits."""
+        kwargs = dict(self._init_kwargs)
+        kwargs["origin"] = self.origin  # the resolved origin, so the local frame is identical
+        return (_rebuild, (self.cloud, kwargs))
+
+    @property
+    def settings(self) -> dict:
+        """The constructor's keyword arguments (origin resolved)."""
+        kwargs = dict(self._init_kwargs)
+        kwargs["origin"] = self.origin
+        return kwargs
 
     # -- properties -------------------------------------------------------------------------
     @property
@@ -321,6 +340,10 @@ class SurfelScene:
                                       pixel_angle=pa, threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return hit.astype(bool)
+
+
+def _rebuild(cloud, kwargs):
+    return SurfelScene(cloud, **kwargs)
 
 
 def _pixel_angle(pixel_angle, camera) -> float:

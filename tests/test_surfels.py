@@ -313,3 +313,17 @@ def test_bad_scene_options_are_named(sphere20k, kwargs, message):
 def test_empty_input_gives_empty_output(sphere20k):
     out = SurfelScene(sphere20k).cast_rays(np.zeros((0, 6)))
     assert out["t_hit"].shape == (0,) and out["normals"].shape == (0, 3)
+
+
+def test_pickle_rebuilds_the_same_tree(sphere20k, rng):
+    import pickle
+
+    scene = SurfelScene(sphere20k, leaf_size=5, interpolation="paper", box_depth=3, window=0.7)
+    copy = pickle.loads(pickle.dumps(scene))
+    assert copy.settings == scene.settings or all(
+        np.all(np.asarray(copy.settings[k]) == np.asarray(v)) for k, v in scene.settings.items())
+    rays = rays_at_sphere(rng, 2000)
+    a, b = scene.cast_rays(rays), copy.cast_rays(rays)
+    for key in ("t_hit", "normals", "index"):
+        np.testing.assert_array_equal(a[key], b[key])
+    assert copy.n_nodes == scene.n_nodes and copy.box_depth == scene.box_depth
