@@ -320,8 +320,8 @@ def test_pickle_rebuilds_the_same_tree(sphere20k, rng):
 
     scene = SurfelScene(sphere20k, leaf_size=5, interpolation="paper", box_depth=3, window=0.7)
     copy = pickle.loads(pickle.dumps(scene))
-    assert copy.settings == scene.settings or all(
-        np.all(np.asarray(copy.settings[k]) == np.asarray(v)) for k, v in scene.settings.items())
+    for key, value in scene.settings.items():
+        assert np.array_equal(np.asarray(copy.settings[key]), np.asarray(value)), key
     rays = rays_at_sphere(rng, 2000)
     a, b = scene.cast_rays(rays), copy.cast_rays(rays)
     for key in ("t_hit", "normals", "index"):
