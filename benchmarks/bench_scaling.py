@@ -1,13 +1,13 @@
 """Scaling of pointviz with surfel count and threads, with Embree oriented discs alongside.
 
 For each size (Armadillo surface-sampled, 0.1M .. 20M surfels; ``--max`` caps it) and each thread
-count (1, 2): build time, memory (``scene.memory_bytes`` per surfel; the growth of this process's
-resident set over the build; peak RSS) and throughput of the full-view 400x400 primary rays with
-the ``full`` variant (LoD from the camera), next to Embree discs built and queried with the same
-threads (``rtcIntersect1`` per ray) on the same surfels and rays. Builds and queries of the two
-engines are interleaved and repeated ``--repeat`` times (median), so the ratios compare runs made
-moments apart on this shared machine. Times are wall clock (``--clock``); the
-process CPU time is recorded too.
+count (1, 2): build time, memory (``scene.memory_bytes`` per surfel; the largest growth of this
+process's resident set over a build, after returning freed heap to the OS; peak RSS) and the
+throughput of the full-view 400x400 primary rays with the ``full`` variant (LoD from the camera),
+next to Embree discs built and queried with the same threads (``rtcIntersect1`` per ray) on the
+same surfels and rays. Builds and queries of the two engines are interleaved and repeated
+``--repeat`` times (median), so the ratios compare runs made moments apart on this shared
+machine. Times are wall clock (``--clock``); the process CPU time is recorded too.
 
 Examples
 --------
@@ -43,6 +43,19 @@ def rss_bytes() -> int:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
+def trim_heap() -> None:
+    """Return freed heap pages to the OS (glibc ``malloc_trim``), so RSS growth means new memory.
+
+    Without it, a build reuses pages freed by the previous one and its RSS growth reads as zero.
+    """
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: RSS growth is then only an upper bound
+        pass
+
+
 def measure_size(model: pf.Model, args) -> dict:
     """Build and cast at every thread count, pointviz and Embree interleaved."""
     import pointviz
@@ -58,6 +71,7 @@ def measure_size(model: pf.Model, args) -> dict:
         for _ in range(args.build_repeat):
             scene = discs = None
             gc.collect()
+            trim_heap()
             before = rss_bytes()
             start = time.perf_counter()
             scene = pointviz.SurfelScene(model.cloud, variant="full", threads=threads)
@@ -75,7 +89,7 @@ def measure_size(model: pf.Model, args) -> dict:
                "mrays": {k: len(rays) / t["median"] / 1e6 for k, t in times.items()},
                "cpu_seconds": {k: t["cpu_median"] for k, t in times.items()},
                "bytes_per_surfel": scene.memory_bytes / model.n,
-               "rss_growth_per_surfel": float(np.median(rss_growth)) / model.n,
+               "rss_growth_per_surfel": float(np.max(rss_growth)) / model.n,
                "depth": scene.depth, "box_depth": scene.box_depth}
         if discs is not None:
             row["embree_bytes_per_surfel"] = (discs.scene_bytes + discs.input_bytes) / model.n

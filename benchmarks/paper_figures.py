@@ -146,6 +146,7 @@ def save_figure(fig, out_dir: Path, name: str) -> Path:
     """Save a matplotlib figure as a small PNG (dpi chosen to stay well under 200 KB)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / name
+    fig.tight_layout()
     fig.savefig(path, dpi=80, bbox_inches="tight")
     import matplotlib.pyplot as plt
 
@@ -549,7 +550,7 @@ def chart_fig56(records: list, out_dir: Path) -> list[Path]:
         ax.set_ylim(0, 1.3 * max(ms))
         if rec["embree"]:
             ax.legend(fontsize=8, loc="upper right")
-    fig.suptitle("Figure 5: traversal time per variant (paper: -60..-70% kdtree -> full)")
+    fig.suptitle("Figure 5: traversal time per variant (paper: -60..-70% kdtree -> full)", y=1.03)
     paths.append(save_figure(fig, out_dir, "fig5_traversal_time.png"))
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.4))
@@ -565,7 +566,7 @@ def chart_fig56(records: list, out_dir: Path) -> list[Path]:
             ax.set_xticks(x + width * (len(records) - 1) / 2, VARIANTS)
             ax.set_title(title)
     axes[0].legend(fontsize=7)
-    fig.suptitle("Figure 6: per-ray statistics (bars: all rays; marks: rays that hit)")
+    fig.suptitle("Figure 6: per-ray statistics (bars: all rays; marks: rays that hit)", y=1.03)
     paths.append(save_figure(fig, out_dir, "fig6_stats.png"))
     return paths
 
@@ -641,7 +642,7 @@ def print_fig7(rec: dict) -> None:
 def chart_fig7(records: list, out_dir: Path) -> Path:
     """Time against distance (log-log) and, on a second axis, LoD's FLIP error."""
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(records), figsize=(5.5 * len(records), 3.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(records), figsize=(6.5 * len(records), 4.0), squeeze=False)
     styles = {"lod": ("#4878a8", "-o"), "no lod": ("#dd8452", "-s"), "kdtree": ("#8172b3", "-^"),
               "embree discs": ("#c44e52", "--"), "embree triangles": ("#55a868", ":")}
     for ax, rec in zip(axes[0], records):
@@ -652,6 +653,7 @@ def chart_fig7(records: list, out_dir: Path) -> Path:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xticks(f, [f"{v:g}x" for v in f])
+        ax.xaxis.set_minor_formatter(plt.NullFormatter())
         ax.set_xlabel("camera distance (x fitted distance)")
         ax.set_ylabel("traversal time (ms, 1 thread)")
         ax.set_title(f"{rec['model']} {rec['n'] / 1e6:.2g}M surfels")
@@ -661,7 +663,7 @@ def chart_fig7(records: list, out_dir: Path) -> Path:
         lines = ax.get_legend_handles_labels()
         lines2 = ax2.get_legend_handles_labels()
         ax.legend(lines[0] + lines2[0], lines[1] + lines2[1], fontsize=7, loc="lower left")
-    fig.suptitle("Figure 7: traversal time vs distance, LoD on/off, and LoD's image error")
+    fig.suptitle("Figure 7: traversal time vs distance, LoD on/off, and LoD's image error", y=1.03)
     return save_figure(fig, out_dir, "fig7_distance.png")
 
 
@@ -676,7 +678,16 @@ def main(argv: list[str] | None = None) -> int:
                    help="surfels per model (default the paper's dragon, %(default)g)")
     p.add_argument("--models", default="armadillo,dragon", help="armadillo, dragon")
     p.add_argument("--figures", default="5,7", help="which figures: 5 (with 6), 7")
+    p.add_argument("--replot", action="store_true",
+                   help="redraw the charts from the JSON already in --out (no measurement)")
     args = p.parse_args(argv)
+    if args.replot:
+        result = json.loads((args.out / "paper_figures.json").read_text())
+        if result["fig5"]:
+            chart_fig56(result["fig5"], args.out)
+        if result["fig7"]:
+            chart_fig7(result["fig7"], args.out)
+        return 0
     if args.quick:
         args.repeat = 1
     probe = common.probe_pointviz()

@@ -324,7 +324,7 @@ def chart_switch(records: list, out_dir: Path) -> Path:
             ax2.semilogy(k, [max(r["box_bytes_per_surfel"], 1e-4) for r in rows], color="0.6", lw=0.8)
             ax2.set_ylabel("box bytes / surfel", color="0.5")
             ax.legend(fontsize=7, loc="upper right")
-    fig.suptitle("Q1: where to switch from boxes to spheres")
+    fig.suptitle("Q1: where to switch from boxes to spheres (time: process CPU, median)", y=1.02)
     return pf.save_figure(fig, out_dir, "q1_switch_level.png")
 
 
@@ -437,7 +437,7 @@ def chart_criteria(rec: dict, out_dir: Path) -> Path:
         ax.set_ylabel("traversal ms (1 thread)")
         ax.set_title(f"{rec['model']} at {d['factor']:g}x fit distance")
         ax.legend(fontsize=6)
-    fig.suptitle("Q2: LoD criterion, time vs image error (labels: lod_pixels)")
+    fig.suptitle("Q2: LoD criterion, time vs image error (labels: lod_pixels)", y=1.03)
     return pf.save_figure(fig, out_dir, "q2_lod_criteria.png")
 
 
@@ -452,7 +452,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--models", default="armadillo,dragon",
                    help="models for Q1 (Q2 uses the first): armadillo, dragon (scans, not upsampled)")
     p.add_argument("--questions", default="1,2")
+    p.add_argument("--replot", action="store_true",
+                   help="redraw the charts from the JSON already in --out (no measurement)")
     args = p.parse_args(argv)
+    if args.replot:
+        import json
+
+        result = json.loads((args.out / "paper_questions.json").read_text())
+        if result["q1"]:
+            chart_switch(result["q1"], args.out)
+        if result["q2"]:
+            chart_criteria(result["q2"], args.out)
+        return 0
     if args.quick:
         args.repeat = 1
     probe = common.probe_pointviz()
