@@ -41,10 +41,6 @@ DEFAULT_RETRIES = 3
 CONNECT_TIMEOUT_S = 60.0
 #: Seconds between checks of the cancel flag while waiting for frames.
 POLL_INTERVAL_S = 0.2
-#: TraceOptions fields copied verbatim onto a rebuilt SurfelScene (its constructor does not take
-#: all of them).
-_TRACE_FIELDS = ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                 "lod_criterion", "lod_max_extent")
 
 
 @dataclass
@@ -54,7 +50,6 @@ class _ObjectSpec:
     geometry: object
     material: object
     surfel_kwargs: dict | None  # None: callback geometry, sent as is
-    trace_fields: dict | None
 
 
 @dataclass
@@ -75,6 +70,7 @@ class SceneSpec:
     background: tuple | None
     up: tuple
     ambient: float
+    sky: dict
     _built: object = field(default=None, repr=False, compare=False)
     _lock: object = field(default=None, repr=False, compare=False)
 
@@ -115,17 +111,12 @@ class SceneSpec:
             if obj.surfel_kwargs is None:
                 geoms.append(obj.geometry)
                 continue
-            ss = SurfelScene(obj.geometry, **obj.surfel_kwargs)
-            opts = ss.trace_options()
-            for k, v in obj.trace_fields.items():
-                setattr(opts, k, v)
-            ss._options = opts  # fields the SurfelScene constructor does not take
-            geoms.append(ss)
+            geoms.append(SurfelScene(obj.geometry, **obj.surfel_kwargs))
         scene = Scene(geoms, lights=self.lights,
                       ground="none" if self.ground is None else self.ground,
                       background="sky" if self.background is None else self.background,
                       materials=[o.material for o in self.objects], up=self.up,
-                      ambient=self.ambient)
+                      ambient=self.ambient, sky=self.sky or None)
         for i in range(len(geoms)):
             if self.objects[i].surfel_kwargs is not None:
                 scene.surfel_scene(i)  # build now, so the first frame's time is the render's
@@ -161,24 +152,12 @@ def _callback_digest(geometry) -> str:
         return f"callback-id:{type(geometry).__qualname__}:{id(geometry)}"
 
 
-def _surfel_settings(ss) -> tuple[dict, dict]:
-    """Constructor kwargs and TraceOptions fields that rebuild SurfelScene ``ss``."""
-    opts = ss.trace_options()
-    fields = {k: getattr(opts, k) for k in _TRACE_FIELDS if hasattr(opts, k)}
-    kwargs = {
-        "variant": ss.variant,
-        "interpolation": ss.interpolation,
-        "lod": bool(opts.lod),
-        "cull": bool(opts.cull),
-        "box_depth": int(ss.box_depth),
-        "lod_pixels": float(opts.lod_pixels),
-        "window": float(opts.window),
-        "lod_criterion": str(opts.lod_criterion).rsplit(".", 1)[-1],
-        "leaf_size": int(getattr(ss, "leaf_size", 8)),
-        "origin": tuple(float(v) for v in ss.origin),
-        "threads": None,
-    }
-    return kwargs, fields
+def _surfel_settings(ss) -> dict:
+    """Constructor kwargs that rebuild SurfelScene ``ss`` identically (its origin included)."""
+    kwargs = ss.settings
+    kwargs["origin"] = tuple(float(v) for v in kwargs["origin"])
+    kwargs["threads"] = None  # each worker uses its own cores
+    return kwargs
 
 
 def scene_spec(scene_or_cloud) -> SceneSpec:
@@ -200,21 +179,20 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
             ss = scene.surfel_scene(i)
             cloud = ss.cloud
             _ = cloud.normals, cloud.radii  # estimate once, on the client
-            kwargs, fields = _surfel_settings(ss)
+            kwargs = _surfel_settings(ss)
             for name in ("points", "normals", "radii", "colors"):
                 _hash_array(h, getattr(cloud, name, None))
             h.update(repr(sorted(kwargs.items())).encode())
-            h.update(repr(sorted((k, str(v)) for k, v in fields.items())).encode())
-            objects.append(_ObjectSpec(cloud, obj.material, kwargs, fields))
+            objects.append(_ObjectSpec(cloud, obj.material, kwargs))
         else:
             h.update(_callback_digest(g).encode())
-            objects.append(_ObjectSpec(g, obj.material, None, None))
+            objects.append(_ObjectSpec(g, obj.material, None))
         h.update(repr(obj.material).encode())
     rest = (scene.lights, scene.ground, scene.background, tuple(float(v) for v in scene.up),
-            scene.ambient)
+            scene.ambient, sorted(scene.sky.items()))
     h.update(repr(rest).encode())
     return SceneSpec(h.hexdigest(), core_identity(), objects, scene.lights, scene.ground, scene.background,
-                     tuple(float(v) for v in scene.up), float(scene.ambient),
+                     tuple(float(v) for v in scene.up), float(scene.ambient), dict(scene.sky),
                      _built=scene)
 
 
