@@ -61,6 +61,16 @@ _PLY_SIZES = {
     "double": 8, "float64": 8,
 }  # fmt: skip
 
+# PLY types that may count a list's items, and the numpy type of every PLY type.
+_PLY_INT_TYPES = ("char", "int8", "uchar", "uint8", "short", "int16", "ushort", "uint16",
+                  "int", "int32", "uint", "uint32")
+_PLY_NUMPY = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
+    "double": "f8", "float64": "f8",
+}  # fmt: skip
+
 # Largest PLY header we accept before deciding the file is not a PLY file.
 _PLY_MAX_HEADER = 1 << 20
 
@@ -345,10 +355,19 @@ def _ply_header(path: Path) -> dict:
                     raise ValueError(f"negative element count {count}")
                 elements.append((f[1], count, []))
             elif f[0] == "property":
+                if not elements:
+                    raise ValueError("property before any element")
                 if f[1] == "list":
-                    elements[-1][2].append((f[4], ("list", f[2], f[3])))
+                    if f[2] not in _PLY_INT_TYPES or f[3] not in _PLY_SIZES:
+                        raise ValueError(f"bad list types {f[2]!r} {f[3]!r}")
+                    prop = (f[4], ("list", f[2], f[3]))
                 else:
-                    elements[-1][2].append((f[2], f[1]))
+                    if f[1] not in _PLY_SIZES:
+                        raise ValueError(f"unknown property type {f[1]!r}")
+                    prop = (f[2], f[1])
+                if any(name == prop[0] for name, _ in elements[-1][2]):
+                    raise ValueError(f"property {prop[0]!r} declared twice")
+                elements[-1][2].append(prop)
             else:
                 raise ValueError(f"unknown keyword {f[0]!r}")
         except (IndexError, ValueError) as exc:
@@ -406,6 +425,7 @@ def _check_ply_complete(path: Path, header: dict) -> None:
             f"{path}: truncated PLY: the header's elements need at least {need} bytes, "
             f"the file has {size}"
         )
+    _check_ply_binary_faces(path, header, size)
     fixed = all(not isinstance(ptype, tuple) for _, _, props in elements for _, ptype in props)
     if fixed and elements:
         last_row = sum(_PLY_SIZES.get(ptype, 4) for _, ptype in elements[-1][2])
@@ -416,6 +436,62 @@ def _check_ply_complete(path: Path, header: dict) -> None:
                 f"(at least {extra // last_row} more '{elements[-1][0]}' rows) beyond the "
                 f"{sum(c for _, c, _ in elements)} rows the header declares"
             )
+
+
+def _face_error(path, k, what):
+    return FileFormatError(f"{path}: corrupt PLY mesh: face {k} {what}")
+
+
+def _check_ply_binary_faces(path: Path, header: dict, size: int) -> None:
+    """Face lists must be polygons (>= 3 items) of valid vertex indices; Open3D does not check
+    and crashes on garbage. Only the usual layout is walked: fixed-size elements before a face
+    element whose only property is its index list."""
+    elements = header["elements"]
+    names = [name for name, _, _ in elements]
+    if "face" not in names:
+        return
+    nvert = next((count for name, count, _ in elements if name == "vertex"), 0)
+    end = ">" if header["format"] == "binary_big_endian" else "<"
+    offset = header["header_bytes"]
+    for name, count, props in elements:
+        if name == "face":
+            break
+        if any(isinstance(ptype, tuple) for _, ptype in props):
+            return  # variable-size rows before the faces: cannot locate them cheaply
+        offset += count * sum(_PLY_SIZES[ptype] for _, ptype in props)
+    _, nface, props = elements[names.index("face")]
+    if nface == 0 or len(props) != 1 or not isinstance(props[0][1], tuple):
+        return
+    _, ctype, itype = props[0][1]
+    cdt, idt = np.dtype(end + _PLY_NUMPY[ctype]), np.dtype(end + _PLY_NUMPY[itype])
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        data = fh.read()
+    if not data:
+        raise FileFormatError(f"{path}: truncated PLY: no face data")
+    k0 = int(np.frombuffer(data[: cdt.itemsize], cdt)[0])
+    row = cdt.itemsize + k0 * idt.itemsize
+    if k0 >= 3 and len(data) >= nface * row:  # fast path: every face has k0 corners
+        rows = np.frombuffer(data[: nface * row], dtype=np.dtype([("n", cdt), ("i", idt, (k0,))]))
+        if (rows["n"] == k0).all():
+            bad = np.flatnonzero(((rows["i"] < 0) | (rows["i"] >= nvert)).any(axis=1))
+            if bad.size:
+                raise _face_error(path, int(bad[0]), f"has vertex indices outside 0..{nvert - 1}")
+            return
+    pos = 0
+    for k in range(nface):  # mixed polygons: walk the rows
+        if pos + cdt.itemsize > len(data):
+            raise FileFormatError(f"{path}: truncated PLY: the data ends at face {k} of {nface}")
+        n = int(np.frombuffer(data[pos:pos + cdt.itemsize], cdt)[0])
+        pos += cdt.itemsize
+        if n < 3:
+            raise _face_error(path, k, f"has {n} corners")
+        if pos + n * idt.itemsize > len(data):
+            raise FileFormatError(f"{path}: truncated PLY: the data ends at face {k} of {nface}")
+        idx = np.frombuffer(data[pos:pos + n * idt.itemsize], idt)
+        pos += n * idt.itemsize
+        if ((idx < 0) | (idx >= nvert)).any():
+            raise _face_error(path, k, f"has vertex indices outside 0..{nvert - 1}")
 
 
 def _check_ply_ascii_rows(path: Path, data: bytes, elements) -> None:
@@ -434,6 +510,18 @@ def _check_ply_ascii_rows(path: Path, data: bytes, elements) -> None:
                     f"{path}: malformed ASCII PLY: {name} row {k} has {len(fields)} values, "
                     f"the header declares {len(props)} properties"
                 )
+        if name == "face" and len(props) == 1 and has_list:
+            nvert = next((c for nm, c, _ in elements if nm == "vertex"), 0)
+            for k, line in enumerate(rows):
+                fields = line.split()
+                try:
+                    values = [int(v) for v in fields]
+                except ValueError:
+                    raise _face_error(path, k, "holds a non-integer") from None
+                if values[0] < 3 or len(values) != values[0] + 1:
+                    raise _face_error(path, k, f"declares {values[0]} corners, has {len(values) - 1}")
+                if min(values[1:]) < 0 or max(values[1:]) >= nvert:
+                    raise _face_error(path, k, f"has vertex indices outside 0..{nvert - 1}")
         if not rows or has_list:
             continue
         try:
