@@ -87,6 +87,11 @@ _LAS_VLR_HEADER = 54
 
 # Largest PCD header (text lines before DATA) we accept.
 _PCD_MAX_HEADER = 1 << 16
+# PCD v0.7 header lines: all known ones, and those the format requires (Open3D reads garbage
+# sizes, and may allocate without bound, when one is missing).
+_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
+             "POINTS", "DATA")
+_PCD_REQUIRED = ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "POINTS", "DATA")
 # Most values one PCD field may hold: descriptors reach a few hundred (VFH: 308); Open3D's reader
 # overflows (and crashes) on counts near 2^31.
 _PCD_MAX_COUNT = 1 << 16
@@ -620,6 +625,13 @@ def _check_pcd(path: Path) -> None:
     h = _pcd_header(path)
     if h is None:
         raise FileFormatError(f"{path}: not a PCD file (no DATA line in the header)")
+
+    unknown = sorted(set(h) - set(_PCD_KEYS) - {"_offset"})
+    if unknown:
+        raise FileFormatError(f"{path}: PCD header: unknown line(s) {', '.join(unknown)!r}")
+    missing = [k for k in _PCD_REQUIRED if k not in h]
+    if missing:
+        raise FileFormatError(f"{path}: PCD header: missing {' '.join(missing)} line(s)")
 
     def ints(key, default=None):
         if key not in h:

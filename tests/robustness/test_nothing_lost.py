@@ -1,0 +1,164 @@
+"""Nothing lost: outputs appear atomically, existing files are never replaced silently, and an
+interrupted or failed write leaves neither a corrupt output nor a stray ``.part`` file."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+import pointviz
+from pointviz import Camera, PointCloud
+from pointviz.errors import CancelledError
+from pointviz.imageio import atomic_write_bytes, save_image
+
+from . import samples as S
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _leftovers(folder):
+    return [p.name for p in folder.iterdir() if p.name.endswith(".part") or p.name.startswith(".")]
+
+
+@pytest.fixture(scope="module")
+def small_frame():
+    pts = S.sample_points(300, seed=1).astype(np.float64)
+    cloud = PointCloud(pts, normals=pts, radii=0.15)
+    cam = Camera.look_at((0, 0.5, 4), (0, 0, 0), width=24, height=18)
+    return pointviz.render(cloud, cam, spp=1, reflections=0), cloud, cam
+
+
+def test_save_refuses_to_overwrite_and_leaves_the_file_untouched(tmp_path, small_frame):
+    frame, _, _ = small_frame
+    out = tmp_path / "frame.png"
+    out.write_bytes(b"precious bytes")
+    with pytest.raises(FileExistsError, match="overwrite"):
+        frame.save(out)
+    assert out.read_bytes() == b"precious bytes"
+    frame.save(out, overwrite=True)
+    assert out.read_bytes().startswith(PNG_MAGIC)
+    assert not _leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("failure", ["replace", "fsync", "write"])
+def test_a_failed_write_leaves_the_old_file_and_no_part_file(tmp_path, monkeypatch, failure):
+    out = tmp_path / "img.png"
+    out.write_bytes(b"old")
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    if failure == "replace":
+        monkeypatch.setattr(os, "replace", boom)
+    elif failure == "fsync":
+        monkeypatch.setattr(os, "fsync", boom)
+    else:  # the disk fills halfway through the data
+        real_fdopen = os.fdopen
+        monkeypatch.setattr(os, "fdopen", lambda fd, mode: _HalfWriter(real_fdopen(fd, mode)))
+    with pytest.raises(OSError, match="No space"):
+        atomic_write_bytes(out, b"new data" * 1000, overwrite=True)
+    assert out.read_bytes() == b"old"
+    assert not _leftovers(tmp_path)
+
+
+class _HalfWriter:
+    """A file whose write stores half the data, then fails like a full disk."""
+
+    def __init__(self, f):
+        self.f = f
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+        return False
+
+    def write(self, data):
+        self.f.write(data[: len(data) // 2])
+        raise OSError(28, "No space left on device")
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+def test_a_new_file_appears_whole_or_not_at_all(tmp_path, monkeypatch):
+    out = tmp_path / "new.png"
+    monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        save_image(out, np.zeros((4, 4, 3), np.float32))
+    assert not out.exists() and not _leftovers(tmp_path)
+
+
+@pytest.mark.xfail(strict=True, reason="imageio.atomic_write_bytes keeps mkstemp's 0600 mode: "
+                   "saved images are unreadable to the group/others; chmod the temporary file to "
+                   "0o666 & ~umask before os.replace (as open() would create it)")
+def test_saved_files_get_ordinary_permissions(tmp_path, small_frame):
+    frame, _, _ = small_frame
+    umask = os.umask(0o022)
+    try:
+        path = frame.save(tmp_path / "perm.png")
+    finally:
+        os.umask(umask)
+    assert (path.stat().st_mode & 0o777) == 0o644
+
+
+def test_cancelled_render_writes_nothing(tmp_path, small_frame):
+    _, cloud, cam = small_frame
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(CancelledError):
+        pointviz.render(cloud, cam.with_size(64, 48), cancel=stop)
+    assert not list(tmp_path.iterdir())
+
+
+def _cli(args, cwd, **kw):
+    return subprocess.run([sys.executable, "-m", "pointviz.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300, check=False, **kw)
+
+
+def test_cli_render_refuses_then_overwrites_on_request(tmp_path):
+    (tmp_path / "in.ply").write_bytes(S.ply_binary(S.sample_points(200)))
+    args = ["render", "in.ply", "-o", "out.png", "--width", "16", "--height", "12", "--spp", "1"]
+    first = _cli(args, tmp_path)
+    assert first.returncode == 0, first.stderr
+    before = (tmp_path / "out.png").read_bytes()
+    (tmp_path / "out.png").write_bytes(before + b"user's edit")  # the user's file now
+    second = _cli(args, tmp_path)
+    assert second.returncode == 2 and "exists" in second.stderr
+    assert len(second.stderr.strip().splitlines()) == 1
+    assert (tmp_path / "out.png").read_bytes() == before + b"user's edit"
+    third = _cli([*args, "--overwrite"], tmp_path)
+    assert third.returncode == 0, third.stderr
+    assert (tmp_path / "out.png").read_bytes() == before  # deterministic render, replaced whole
+    assert not _leftovers(tmp_path)
+
+
+def test_cli_render_interrupted_leaves_no_file(tmp_path):
+    """Ctrl-C in the middle of a render: exit 130, no output, no .part file."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pointviz.cli", "render", "demo", "-o", "big.png",
+         "--width", "1600", "--height", "1200", "--spp", "16", "--progress"],
+        cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    seen = ""
+    try:
+        while "render [" not in seen:  # the render has started
+            ch = proc.stderr.read(1)
+            if not ch:
+                break
+            seen += ch
+        proc.send_signal(signal.SIGINT)
+        rest = proc.stderr.read()
+        code = proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 130, (seen + rest)[-500:]
+    assert "interrupted" in rest and "Traceback" not in rest
+    assert not (tmp_path / "big.png").exists() and not _leftovers(tmp_path)
