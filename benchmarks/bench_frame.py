@@ -21,8 +21,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import common  # noqa: E402
-import paper_figures as pf  # noqa: E402
+import common
+import paper_figures as pf
 
 WIDTH, HEIGHT = 640, 480
 SIZE = 1_000_000

@@ -27,8 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import common  # noqa: E402
-import paper_figures as pf  # noqa: E402
+import common
+import paper_figures as pf
 
 SIZES = (100_000, 300_000, 1_000_000, 3_000_000, 10_000_000, 20_000_000)
 QUICK_SIZES = (5_000, 20_000)
@@ -80,9 +80,9 @@ def measure_size(model: pf.Model, args) -> dict:
             discs, why = pf.embree_discs(model.cloud, threads)
             if discs is not None:
                 builds["embree discs"].append(discs.build_seconds)
-        calls = {"pointviz": lambda: pf.core_cast(scene, rays, cam.pixel_angle, threads)}
+        calls = {"pointviz": lambda s=scene, t=threads: pf.core_cast(s, rays, cam.pixel_angle, t)}
         if discs is not None:
-            calls["embree discs"] = lambda: discs.intersect(rays32, mode=1)
+            calls["embree discs"] = lambda d=discs: d.intersect(rays32, mode=1)
         times = pf.interleaved(calls, args.repeat, args.clock)
         row = {"build_seconds": {k: float(np.median(v)) for k, v in builds.items() if v},
                "cast_seconds": {k: t["median"] for k, t in times.items()},

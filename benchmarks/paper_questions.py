@@ -41,8 +41,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import common  # noqa: E402
-import paper_figures as pf  # noqa: E402
+import common
+import paper_figures as pf
 
 #: Bytes of one node's box (two float3): the memory side of the switch level.
 BOX_BYTES = 24
@@ -189,8 +189,8 @@ def switch_level(model: pf.Model, args) -> dict:
     scene = pointviz.SurfelScene(model.cloud, variant="full", box_depth="all", threads=args.threads)
     tree, origin, depth, n = scene.tree, scene.origin, scene.depth, scene.n_surfels
     ls = np.asarray(tree.level_start)
-    ks = list(range(0, depth + 1))
-    configs = {"lod": dict(lod=True, cull=True), "nolod": dict(lod=False, cull=False)}
+    ks = list(range(depth + 1))
+    configs = {"lod": {"lod": True, "cull": True}, "nolod": {"lod": False, "cull": False}}
 
     def setup(factor):
         cam = pf.camera_at(base, factor)
@@ -237,8 +237,8 @@ def switch_level(model: pf.Model, args) -> dict:
             continue
         c2, r2, d2 = setup(factor)
         pa2 = {"lod": c2.pixel_angle, "nolod": 0.0}
-        calls2 = {(cfg, k): (lambda cfg=cfg, k=k: pf.core_cast(scene, r2, pa2[cfg], args.threads,
-                                                               box_depth=k, **configs[cfg]))
+        calls2 = {(cfg, k): (lambda cfg=cfg, k=k, r2=r2, pa2=pa2: pf.core_cast(
+                                 scene, r2, pa2[cfg], args.threads, box_depth=k, **configs[cfg]))
                   for cfg in configs for k in (0, depth)}
         t2 = pf.interleaved(calls2, args.repeat, args.clock)
         for (cfg, k), t in t2.items():
@@ -356,10 +356,10 @@ def lod_criteria(model: pf.Model, args) -> dict:
         cam = pf.camera_at(base, factor)
         rays = pf.rays64(cam)
 
-        calls = {"no lod": lambda: pf.core_cast(scene, rays, 0.0, args.threads)}
+        calls = {"no lod": lambda r=rays: pf.core_cast(scene, r, 0.0, args.threads)}
         for s in settings:
-            calls[s] = (lambda s=s: pf.core_cast(scene, rays, cam.pixel_angle, args.threads,
-                                                 **_criterion_knobs(*s)))
+            calls[s] = (lambda s=s, r=rays, c=cam: pf.core_cast(scene, r, c.pixel_angle, args.threads,
+                                                                **_criterion_knobs(*s)))
         times = pf.interleaved(calls, args.repeat, args.clock)
         ref_out, _ = pf.core_cast(scene, rays, 0.0, args.threads)
         ref = pf.normal_image(ref_out, cam)
