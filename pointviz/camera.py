@@ -50,6 +50,10 @@ DEFAULT_FIT_DIRECTION = (0.0, -0.3, -1.0)
 #: Default padding of :meth:`Camera.fit`: the bounding sphere's image radius is the half size of
 #: the smaller image side divided by this.
 DEFAULT_MARGIN = 1.05
+#: Fraction of points Camera.fit may leave out of the frame (stray points of raw scans).
+FIT_OUTLIER_FRACTION = 0.002
+#: Below this many points every point is framed (too few to call any of them stray).
+FIT_ROBUST_MIN_POINTS = 2000
 #: ``up`` is rejected when the sine of its angle to the view direction is below this.
 PARALLEL_SIN_TOL = 1e-6
 #: Radius used by :meth:`Camera.fit` for a cloud whose points all coincide (scene units).
@@ -214,6 +218,22 @@ def fit_distance(
     return float(radius) / math.sin(theta)
 
 
+def _rotate_y_to(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` rotated by the smallest rotation that takes +Y to ``up``."""
+    y = np.array([0.0, 1.0, 0.0])
+    u = np.asarray(up, dtype=np.float64)
+    n = np.linalg.norm(u)
+    if not n > 0:
+        return v
+    u = u / n
+    axis = np.cross(y, u)
+    s, c = np.linalg.norm(axis), float(y @ u)
+    if s < 1e-12:
+        return v if c > 0 else -v
+    k = axis / s
+    return v * c + np.cross(k, v) * s + k * (k @ v) * (1.0 - c)
+
+
 def _cloud_points_and_up(cloud: Any) -> tuple[np.ndarray, Any]:
     """Points (n, 3) and optional ``up`` of a cloud object (or a bare (n, 3) array)."""
     points = getattr(cloud, "points", cloud)
@@ -358,6 +378,7 @@ class Camera:
         height: int = DEFAULT_HEIGHT,
         up: Any = None,
         margin: float = DEFAULT_MARGIN,
+        outliers: float = FIT_OUTLIER_FRACTION,
     ) -> Camera:
         """Camera that frames a whole cloud.
 
@@ -378,6 +399,13 @@ class Camera:
             Up hint; None uses ``cloud.up`` when set, else +Y.
         margin : float
             Padding factor (> 0).
+        outliers : float
+            Fraction of points (in [0, 0.1]) that may fall outside the frame: raw scans carry a
+            few stray points far from the object, which would otherwise shrink it to a corner.
+            Clouds under FIT_ROBUST_MIN_POINTS points are always framed whole.
+
+        The default ``direction`` is given for +Y up; for a cloud with another ``up`` (LiDAR is
+        +Z up) it is rotated so that the view keeps the same elevation.
 
         Returns
         -------
@@ -387,6 +415,16 @@ class Camera:
         """
         points, cloud_up = _cloud_points_and_up(cloud)
         centre, radius = bounding_sphere(points, "cloud.points")
+        outliers = _real(outliers, "outliers")
+        if not 0.0 <= outliers <= 0.1:
+            raise InputError(f"outliers must be in [0, 0.1], got {outliers}")
+        pts = np.asarray(points, dtype=np.float64)
+        if outliers > 0.0 and len(pts) >= FIT_ROBUST_MIN_POINTS:
+            lo = np.quantile(pts, outliers / 2, axis=0)
+            hi = np.quantile(pts, 1.0 - outliers / 2, axis=0)
+            centre = 0.5 * (lo + hi)
+            dist = np.sqrt(np.einsum("ij,ij->i", pts - centre, pts - centre))
+            radius = float(np.quantile(dist, 1.0 - outliers))
         if radius == 0.0:
             radius = DEGENERATE_RADIUS
         direction = _vec3(direction, "direction")
@@ -399,6 +437,9 @@ class Camera:
         else:
             up_name = "up"
         up = _vec3(up, up_name)
+        if direction is DEFAULT_FIT_DIRECTION or np.array_equal(direction, DEFAULT_FIT_DIRECTION):
+            direction = _rotate_y_to(np.asarray(DEFAULT_FIT_DIRECTION, dtype=np.float64), up)
+            norm = float(np.linalg.norm(direction))
         distance = fit_distance(radius, fov_deg, width, height, margin)
         eye = centre - distance * direction / norm
         return cls(eye, centre, up, fov_deg, width, height)

@@ -411,6 +411,12 @@ COVER_MARGIN = 1.2
 # Cap in units of the COVER_K-th neighbour distance: an open boundary has no bisector on its
 # outer side, and a near-tangent one would put the cell's far end at a huge distance.
 COVER_CAP = 1.0
+# Global cap in units of the cloud's 99th-percentile radius: a small stray cluster (a few
+# points off the surface, common in raw scans) has no neighbours around it, and its cell would
+# reach out to the distant surface: disks a hundred times the typical size (seen on the dragon
+# scans). Surfaces sampled over 4x more sparsely than the sparsest percent of the cloud get
+# small holes instead.
+COVER_GLOBAL_CAP = 4.0
 
 
 def coverage_radii(points: np.ndarray, normals: np.ndarray, *, k: int = COVER_K,
@@ -469,6 +475,8 @@ def coverage_radii(points: np.ndarray, normals: np.ndarray, *, k: int = COVER_K,
     bad = ~(out > 0)
     if bad.any():  # stacks of duplicates: the spacing-based estimate knows how to handle them
         out[bad] = estimate_radii(points)[bad]
+    if n >= 100:  # too few points for a meaningful percentile below that
+        np.minimum(out, np.float32(COVER_GLOBAL_CAP * np.quantile(out, 0.99)), out=out)
     return out
 
 

@@ -15,6 +15,10 @@ from . import _core
 from .errors import InputError
 
 _Y_UP = (0.0, 1.0, 0.0)
+#: Fraction of a large cloud's lowest points that may sink below the "auto" ground.
+GROUND_OUTLIER_FRACTION = 0.0005
+#: Clouds smaller than this rest on their lowest point.
+GROUND_ROBUST_MIN_POINTS = 2000
 
 
 def _rgb(value, name: str) -> tuple[float, float, float]:
@@ -307,13 +311,31 @@ class Scene:
                          for z in (lo[2], hi[2])])
 
     def ground_point(self) -> np.ndarray:
-        """A point of the ground plane: under the lowest point along ``up``."""
+        """A point of the ground plane: just under the objects along ``up``.
+
+        The lowest GROUND_OUTLIER_FRACTION of a large cloud's points are ignored, so that a few
+        stray points of a raw scan do not float the object high above its floor.
+        """
         lo, hi = self.bounds()
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])])
-        h = float(np.min(corners @ self.up))
         center = 0.5 * (lo + hi)
-        return center + (h - center @ self.up) * self.up
+        heights = []
+        for obj in self.objects:
+            g = obj.geometry
+            cloud = getattr(g, "cloud", g)
+            pts = getattr(cloud, "points", None)
+            if pts is None:
+                blo, bhi = g.bounds()
+                corners = np.array([[x, y, z] for x in (blo[0], bhi[0]) for y in (blo[1], bhi[1])
+                                    for z in (blo[2], bhi[2])])
+                heights.append(float(np.min(corners @ self.up)))
+                continue
+            h = np.asarray(pts) @ self.up
+            r = float(np.quantile(cloud.radii, 0.99)) if hasattr(cloud, "radii") else 0.0
+            low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
+                   else h.min())
+            heights.append(float(low) - r)
+        level = min(heights)
+        return center + (level - center @ self.up) * self.up
 
     def to_core(self, camera, lod_pixels: float):
         """The C++ render scene and its local origin (float64): everything is re-centred on it

@@ -164,7 +164,7 @@ def test_fit_frames_cloud_and_sphere_touches_margin(rng, width, height):
     pts = rng.normal(size=(2000, 3)) * [5.0, 1.0, 2.0] + [100.0, -20.0, 3.0]
     cloud = SimpleNamespace(points=pts)
     margin = 1.1
-    cam = Camera.fit(cloud, fov_deg=35.0, width=width, height=height, margin=margin)
+    cam = Camera.fit(cloud, fov_deg=35.0, width=width, height=height, margin=margin, outliers=0.0)
     centre, radius = bounding_sphere(pts)
     np.testing.assert_allclose(cam.target, centre)
     pixels, depth = cam.project(pts)
@@ -178,6 +178,30 @@ def test_fit_frames_cloud_and_sphere_touches_margin(rng, width, height):
     reach = np.max(np.linalg.norm(sp - [width / 2, height / 2], axis=1))
     assert reach == pytest.approx(min(width, height) / (2 * margin), rel=2e-3)
     assert reach <= min(width, height) / (2 * margin) * (1 + 1e-12)
+
+
+def test_fit_ignores_a_few_stray_points(rng):
+    body = rng.normal(size=(20000, 3))
+    strays = rng.normal(size=(10, 3)) * 0.1 + [40.0, 0.0, 0.0]
+    cloud = SimpleNamespace(points=np.vstack([body, strays]))
+    robust = Camera.fit(cloud, width=200, height=200)
+    whole = Camera.fit(cloud, width=200, height=200, outliers=0.0)
+    px, _ = robust.project(body)
+    inside = np.all((px >= 0) & (px <= 200), axis=1).mean()
+    assert inside > 0.995
+    # the body fills the robust frame: its spread in pixels is many times the whole-cloud one
+    spread = lambda cam: np.ptp(cam.project(body)[0], axis=0).max()  # noqa: E731
+    assert spread(robust) > 5 * spread(whole)
+    with pytest.raises(InputError, match="outliers"):
+        Camera.fit(cloud, outliers=0.5)
+
+
+def test_fit_default_direction_follows_up(rng):
+    pts = rng.uniform(-1, 1, (500, 3))
+    z_up = Camera.fit(SimpleNamespace(points=pts, up=np.array([0.0, 0.0, 1.0])))
+    y_up = Camera.fit(SimpleNamespace(points=pts))
+    # the same elevation above the ground plane in both frames
+    assert z_up.forward @ [0, 0, 1] == pytest.approx(y_up.forward @ [0, 1, 0])
 
 
 def test_fit_direction_and_up(rng):
