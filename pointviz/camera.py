@@ -22,12 +22,10 @@ coordinates; hence ``cx = width / 2 - 0.5`` and ``cy = height / 2 - 0.5`` there.
 
 from __future__ import annotations
 
-import errno
 import json
 import math
 import numbers
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -261,32 +259,9 @@ def atomic_write_text(path: str | os.PathLike, text: str, overwrite: bool = Fals
     FileExistsError
         If ``path`` exists and ``overwrite`` is False; the message names the path.
     """
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    refuse = f"refusing to overwrite existing file {str(path)!r} (pass overwrite=True)"
-    if not overwrite and path.exists():
-        raise FileExistsError(errno.EEXIST, refuse, str(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError:
-                raise FileExistsError(errno.EEXIST, refuse, str(path)) from None
-            except OSError:  # file systems without hard links: check-then-rename
-                if path.exists():
-                    raise FileExistsError(errno.EEXIST, refuse, str(path)) from None
-                os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    from .files import atomic_write_text as write
+
+    return write(path, text, overwrite)
 
 
 def read_json_file(path: str | os.PathLike) -> Any:
@@ -332,8 +307,17 @@ class Camera:
         For any invalid argument; the message names it.
     """
 
-    __slots__ = ("_eye", "_target", "_up", "_fov_deg", "_width", "_height",
-                 "_forward", "_right", "_true_up")
+    __slots__ = (
+        "_eye",
+        "_forward",
+        "_fov_deg",
+        "_height",
+        "_right",
+        "_target",
+        "_true_up",
+        "_up",
+        "_width",
+    )
 
     def __init__(
         self,

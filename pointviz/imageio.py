@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import os
 import struct
-import tempfile
 import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
+from .files import atomic_output, atomic_write_bytes, check_output_path  # noqa: F401 (re-exported)
 
 TONEMAPS = ("aces", "reinhard", "clamp")
 
@@ -40,38 +39,6 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
 def to_srgb8(color: np.ndarray, exposure: float = 1.0, mode: str = "aces") -> np.ndarray:
     """Linear radiance (h, w, 3) -> (h, w, 3) uint8 sRGB."""
     return np.round(linear_to_srgb(tonemap(color, exposure, mode)) * 255.0).astype(np.uint8)
-
-
-def check_output_path(path, overwrite: bool) -> Path:
-    """Refuse to replace an existing file unless asked; make sure the folder exists."""
-    p = Path(path)
-    if p.exists() and not overwrite:
-        raise FileExistsError(f"{p}: exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    if p.exists() and p.is_dir():
-        raise InputError(f"{p}: is a folder, not a file")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{p}: folder {parent} does not exist")
-    return p
-
-
-def atomic_write_bytes(path, data: bytes, overwrite: bool = False) -> Path:
-    """Write to a temporary file beside ``path``, then rename: readers never see half a file."""
-    p = check_output_path(path, overwrite)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return p
 
 
 def encode_png(pixels: np.ndarray) -> bytes:
@@ -120,7 +87,7 @@ def save_image(path, color: np.ndarray, *, alpha: np.ndarray | None = None, bits
 
 def _save_exr(p: Path, color: np.ndarray, overwrite: bool) -> Path:
     try:
-        import OpenEXR  # noqa: F401
+        import OpenEXR
     except ImportError:
         from .errors import MissingDependencyError
 
@@ -128,17 +95,9 @@ def _save_exr(p: Path, color: np.ndarray, overwrite: bool) -> Path:
             f"{p}: writing EXR needs the OpenEXR package: pip install OpenEXR") from None
     import OpenEXR
 
-    check_output_path(p, overwrite)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".exr", dir=p.parent or ".")
-    os.close(fd)
-    try:
-        rgb = np.ascontiguousarray(np.asarray(color, dtype=np.float32))
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    rgb = np.ascontiguousarray(np.asarray(color, dtype=np.float32))
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with atomic_output(p, overwrite, suffix=".exr") as tmp:
         with OpenEXR.File(header, {"RGB": rgb}) as f:
             f.write(tmp)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return p

@@ -8,7 +8,6 @@ temporary file beside the target, which is renamed into place only once it is co
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -93,19 +92,12 @@ def write_video(path, frames: Iterable, fps: float, *, overwrite: bool = False) 
     p = check_video_path(path, overwrite)
     if not (np.isfinite(fps) and fps > 0):
         raise InputError(f"fps: expected a number > 0, got {fps!r}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".part{p.suffix}", dir=p.parent)
-    os.close(fd)
-    try:
+    from .files import atomic_output
+
+    with atomic_output(p, overwrite, suffix=f".part{p.suffix}") as tmp:
         count = (_write_mp4 if p.suffix.lower() == ".mp4" else _write_gif)(tmp, _frames(frames), fps)
         if count == 0:
             raise InputError("frames: no frames to encode")
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
     return p
 
 

@@ -238,3 +238,19 @@ def test_cli_render_and_errors(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing.ply" in err[0]
     assert main(["render", "demo", "-o", str(tmp_path / "y.png"), "--light", "0,0,0"]) == 2
+
+
+def test_saved_files_get_normal_permissions_and_exr_round_trips(ball, tmp_path):
+    import os
+
+    from pointviz.files import default_file_mode
+
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=24, height=16)
+    frame = pointviz.render(ball, cam, spp=1)
+    png = frame.save(tmp_path / "a.png")
+    assert os.stat(png).st_mode & 0o777 == default_file_mode()
+    exr_mod = pytest.importorskip("OpenEXR", reason="EXR output needs the OpenEXR package")
+    exr = frame.save(tmp_path / "a.exr")
+    with exr_mod.File(str(exr)) as f:
+        rgb = f.channels()["RGB"].pixels
+    np.testing.assert_array_equal(rgb, frame.color)
