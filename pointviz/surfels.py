@@ -56,7 +56,10 @@ def _auto_box_depth(n_surfels: int, leaf_size: int) -> int:
 
 
 def as_rays(rays, name: str = "rays") -> np.ndarray:
-    """Validate rays and return them as a C-contiguous (n, 6) float64 array.
+    """Check the shape and type of rays; return a C-contiguous (n, 6) float32 or float64 array.
+
+    Values (NaN/inf, zero directions) are checked by the core while it traces, which names the
+    first bad row; an array that is already contiguous float32/float64 is not copied.
 
     Parameters
     ----------
@@ -71,16 +74,16 @@ def as_rays(rays, name: str = "rays") -> np.ndarray:
         raise InputError(f"{name}: expected a float array, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 6:
         raise InputError(f"{name}: expected shape (n, 6) (origin, direction), got {arr.shape}")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    finite = np.isfinite(arr).all(axis=1)
-    if not finite.all():
-        bad = np.flatnonzero(~finite)
-        raise InputError(f"{name}: {bad.size} rows contain NaN or inf (first at row {bad[0]})")
-    zero = ~(np.abs(arr[:, 3:]).max(axis=1) > 0)
-    if zero.any():
-        bad = np.flatnonzero(zero)
-        raise InputError(f"{name}: {bad.size} rays have a zero direction (first at row {bad[0]})")
-    return arr
+    dtype = arr.dtype if arr.dtype in (np.float32, np.float64) else np.float64
+    return np.ascontiguousarray(arr, dtype=dtype)
+
+
+def _core_call(fn, *args, **kw):
+    """Call the core, turning its value errors (bad rows) into InputError."""
+    try:
+        return fn(*args, **kw)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
 
 
 class SurfelScene:
@@ -301,12 +304,8 @@ class SurfelScene:
         """
         arr = as_rays(rays)
         pa = _pixel_angle(pixel_angle, camera)
-        out, st = self._tree.cast(arr, self.trace_options(lod_pixels), pixel_angle=pa,
-                                  threads=self.threads or 0, stats=stats)
-        t = out["t_hit"].astype(np.float64)
-        with np.errstate(invalid="ignore"):
-            out["positions"] = arr[:, :3] + arr[:, 3:] * t[:, None]
-        out["positions"][~np.isfinite(t)] = np.inf
+        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels), pixel_angle=pa,
+                             threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return out
 
@@ -327,17 +326,18 @@ class SurfelScene:
         (n,) bool
         """
         arr = as_rays(rays)
-        tm = np.broadcast_to(np.asarray(t_max, dtype=np.float32), (len(arr),))
-        if np.isnan(tm).any():
-            raise InputError("t_max: contains NaN")
+        try:
+            tm = np.ascontiguousarray(np.broadcast_to(np.asarray(t_max, dtype=np.float32), (len(arr),)))
+        except (ValueError, TypeError):
+            raise InputError(f"t_max: expected a number or {len(arr)} numbers") from None
         if not np.isfinite(t_min) or t_min < 0:
             raise InputError(f"t_min: must be a finite number >= 0, got {t_min!r}")
         pa = _pixel_angle(pixel_angle, None)
         opts = self.trace_options()
         if pa == 0.0:
             opts.lod = False
-        hit, st = self._tree.occluded(arr, np.ascontiguousarray(tm), opts, t_min=float(t_min),
-                                      pixel_angle=pa, threads=self.threads or 0, stats=stats)
+        hit, st = _core_call(self._tree.occluded, arr, tm, opts, t_min=float(t_min),
+                             pixel_angle=pa, threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return hit.astype(bool)
 

@@ -288,8 +288,8 @@ def test_memory_budget(sphere20k):
 
 @pytest.mark.parametrize("rays, message", [
     (np.zeros((3, 5)), "rays: expected shape"),
-    (np.array([[0, 0, 0, np.nan, 0, 1]]), "rays: 1 rows contain NaN"),
-    (np.array([[0, 0, 0, 0, 0, 0.0]]), "rays: 1 rays have a zero direction"),
+    (np.array([[0, 0, 0, 0, 0, 1], [0, 0, 0, np.nan, 0, 1]]), r"rays: 1 rays have NaN.*row 1\)"),
+    (np.array([[0, 0, 0, 0, 0, 0.0]], np.float32), r"rays: 1 rays have .*zero direction.*row 0\)"),
     (np.array([["a"] * 6]), "rays: expected a float array"),
 ])
 def test_bad_rays_are_named(sphere20k, rays, message):

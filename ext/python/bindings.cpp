@@ -77,6 +77,13 @@ void check_rows(const char *name, size_t ndim, size_t rows, size_t cols, size_t 
         throw nb::value_error((std::string(name) + ": wrong shape").c_str());
 }
 
+/// Raised as pointviz.InputError by the Python layer: names the first bad row.
+void check_invalid(const BatchStats &s, const char *what) {
+    if (s.invalid == 0) return;
+    throw nb::value_error((std::string("rays: ") + std::to_string(s.invalid) + " " + what +
+                           " (first at row " + std::to_string(s.first_invalid) + ")").c_str());
+}
+
 nb::dict stats_dict(const BatchStats &s) {
     nb::dict d;
     double n = s.rays ? double(s.rays) : 1.0;
@@ -107,6 +114,50 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
     BuildOptions opt{leaf_size, box_depth, threads};
     nb::gil_scoped_release release;
     return std::make_unique<SurfelTree>(in, origin.data(), opt);
+}
+
+template <class T>
+nb::tuple cast_binding(const SurfelTree &t, CArray<T> rays, const TraceOptions &opt,
+                       float pixel_angle, int threads, bool want_stats) {
+    size_t n = rays.shape(0);
+    check_rows("rays", rays.ndim(), n, rays.ndim() > 1 ? rays.shape(1) : 0, n, 6);
+    CastOutput out;
+    auto at = new_array<float>({n}, &out.t);
+    auto an = new_array<float>({n, 3}, &out.normal);
+    auto ac = new_array<float>({n, 3}, &out.color);
+    auto ar = new_array<float>({n}, &out.radius);
+    auto ai = new_array<int32_t>({n}, &out.index);
+    auto acnt = new_array<uint8_t>({n}, &out.count);
+    auto ap = new_array<double>({n, 3}, &out.position);
+    BatchStats st;
+    {
+        nb::gil_scoped_release release;
+        cast_rays(t, rays.data(), n, opt, pixel_angle, threads, out, want_stats, st);
+    }
+    check_invalid(st, "rays have NaN/inf values or a zero direction");
+    nb::dict d;
+    d["t_hit"] = at; d["normals"] = an; d["colors"] = ac; d["radii"] = ar;
+    d["index"] = ai; d["count"] = acnt; d["positions"] = ap;
+    return nb::make_tuple(d, stats_dict(st));
+}
+
+template <class T>
+nb::tuple occluded_binding(const SurfelTree &t, CArray<T> rays, CArray<float> t_max,
+                           const TraceOptions &opt, float t_min, float pixel_angle, int threads,
+                           bool want_stats) {
+    size_t n = rays.shape(0);
+    check_rows("rays", rays.ndim(), n, rays.ndim() > 1 ? rays.shape(1) : 0, n, 6);
+    check_rows("t_max", t_max.ndim(), t_max.shape(0), 0, n, 0);
+    uint8_t *hit;
+    auto ah = new_array<uint8_t>({n}, &hit);
+    BatchStats st;
+    {
+        nb::gil_scoped_release release;
+        occluded(t, rays.data(), t_max.data(), n, opt, t_min, pixel_angle, threads, hit,
+                 want_stats, st);
+    }
+    check_invalid(st, "rays have NaN/inf values, a zero direction or a NaN t_max");
+    return nb::make_tuple(ah, stats_dict(st));
 }
 
 /// A render scene plus the Python objects its geometries depend on.
@@ -365,42 +416,12 @@ NB_MODULE(_core, m) {
             d["count"] = acnt; d["index"] = aidx; d["boxes"] = abx; d["order"] = aord;
             return d;
         })
-        .def("cast", [](const SurfelTree &t, CArray<double> rays, const TraceOptions &opt,
-                        float pixel_angle, int threads, bool want_stats) {
-            size_t n = rays.shape(0);
-            check_rows("rays", rays.ndim(), n, rays.ndim() > 1 ? rays.shape(1) : 0, n, 6);
-            CastOutput out;
-            auto at = new_array<float>({n}, &out.t);
-            auto an = new_array<float>({n, 3}, &out.normal);
-            auto ac = new_array<float>({n, 3}, &out.color);
-            auto ar = new_array<float>({n}, &out.radius);
-            auto ai = new_array<int32_t>({n}, &out.index);
-            auto acnt = new_array<uint8_t>({n}, &out.count);
-            BatchStats st;
-            {
-                nb::gil_scoped_release release;
-                cast_rays(t, rays.data(), n, opt, pixel_angle, threads, out, want_stats ? &st : nullptr);
-            }
-            nb::dict d;
-            d["t_hit"] = at; d["normals"] = an; d["colors"] = ac; d["radii"] = ar;
-            d["index"] = ai; d["count"] = acnt;
-            return nb::make_tuple(d, stats_dict(st));
-        }, "rays"_a, "options"_a, "pixel_angle"_a = 0.f, "threads"_a = 0, "stats"_a = true)
-        .def("occluded", [](const SurfelTree &t, CArray<double> rays, CArray<float> t_max,
-                            const TraceOptions &opt, float t_min, float pixel_angle, int threads,
-                            bool want_stats) {
-            size_t n = rays.shape(0);
-            check_rows("rays", rays.ndim(), n, rays.ndim() > 1 ? rays.shape(1) : 0, n, 6);
-            check_rows("t_max", t_max.ndim(), t_max.shape(0), 0, n, 0);
-            uint8_t *hit;
-            auto ah = new_array<uint8_t>({n}, &hit);
-            BatchStats st;
-            {
-                nb::gil_scoped_release release;
-                occluded(t, rays.data(), t_max.data(), n, opt, t_min, pixel_angle, threads, hit,
-                         want_stats ? &st : nullptr);
-            }
-            return nb::make_tuple(ah, stats_dict(st));
-        }, "rays"_a, "t_max"_a, "options"_a, "t_min"_a = 0.f, "pixel_angle"_a = 0.f,
-           "threads"_a = 0, "stats"_a = true);
+        .def("cast", &cast_binding<float>, "rays"_a, "options"_a, "pixel_angle"_a = 0.f,
+             "threads"_a = 0, "stats"_a = true)
+        .def("cast", &cast_binding<double>, "rays"_a, "options"_a, "pixel_angle"_a = 0.f,
+             "threads"_a = 0, "stats"_a = true)
+        .def("occluded", &occluded_binding<float>, "rays"_a, "t_max"_a, "options"_a,
+             "t_min"_a = 0.f, "pixel_angle"_a = 0.f, "threads"_a = 0, "stats"_a = true)
+        .def("occluded", &occluded_binding<double>, "rays"_a, "t_max"_a, "options"_a,
+             "t_min"_a = 0.f, "pixel_angle"_a = 0.f, "threads"_a = 0, "stats"_a = true);
 }

@@ -12,93 +12,119 @@ namespace {
 /// Rays handled per claimed chunk: large enough to amortise scheduling, small enough to balance.
 constexpr size_t kRayGrain = 1024;
 
-/// World ray i -> local unit ray; returns the caller's direction length.
-inline float local_ray(const SurfelTree &tree, const double *r, Ray &ray) {
+/// World ray -> local unit ray. Returns the caller's direction length, or 0 for a ray that
+/// cannot be traced (NaN/inf anywhere, or a zero direction).
+template <class T>
+inline double local_ray(const SurfelTree &tree, const T *r, Ray &ray) {
     const double *o = tree.origin();
-    double dx = r[3], dy = r[4], dz = r[5];
-    double len = std::sqrt(dx * dx + dy * dy + dz * dz);
-    ray.o = {float(r[0] - o[0]), float(r[1] - o[1]), float(r[2] - o[2])};
-    ray.d = {float(dx / len), float(dy / len), float(dz / len)};
-    return float(len);
+    double v[6];
+    bool finite = true;
+    for (int k = 0; k < 6; ++k) {
+        v[k] = double(r[k]);
+        finite = finite && std::isfinite(v[k]);
+    }
+    double len = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
+    if (!finite || !(len > 0.0) || !std::isfinite(len)) return 0.0;
+    ray.o = {float(v[0] - o[0]), float(v[1] - o[1]), float(v[2] - o[2])};
+    ray.d = {float(v[3] / len), float(v[4] / len), float(v[5] / len)};
+    return len;
 }
 
-void merge(BatchStats *into, const BatchStats &s, std::mutex &m) {
-    if (!into) return;
+void merge(BatchStats &into, const BatchStats &s, std::mutex &m) {
     std::lock_guard<std::mutex> lock(m);
-    into->nodes += s.nodes;
-    into->disks += s.disks;
-    into->depth_sum += s.depth_sum;
-    into->hits += s.hits;
-    into->rays += s.rays;
-    into->max_depth = std::max(into->max_depth, s.max_depth);
+    into.nodes += s.nodes;
+    into.disks += s.disks;
+    into.depth_sum += s.depth_sum;
+    into.hits += s.hits;
+    into.rays += s.rays;
+    into.invalid += s.invalid;
+    into.first_invalid = std::min(into.first_invalid, s.first_invalid);
+    into.max_depth = std::max(into.max_depth, s.max_depth);
+}
+
+void add_counts(BatchStats &local, const CountStats &cs) {
+    local.nodes += cs.nodes;
+    local.disks += cs.disks;
+    local.depth_sum += cs.max_depth;
+    local.max_depth = std::max(local.max_depth, cs.max_depth);
+}
+
+void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, double len,
+               const double *rd, const SurfelTree &tree) {
+    const float inf = kInf;
+    if (out.t) out.t[i] = hit ? float(double(h.t) / len) : inf;
+    for (int k = 0; k < 3; ++k) {
+        if (out.normal) out.normal[3 * i + k] = hit ? h.n[k] : 0.f;
+        if (out.color) out.color[3 * i + k] = hit ? h.color[k] : 0.f;
+        // world position in double: origin + t * direction, t in the caller's units
+        if (out.position) out.position[3 * i + k] = hit ? rd[k] + rd[3 + k] * (double(h.t) / len) : inf;
+    }
+    if (out.radius) out.radius[i] = hit ? h.radius : 0.f;
+    if (out.index) out.index[i] = h.index >= 0 ? int32_t(tree.order()[size_t(h.index)]) : h.index;
+    if (out.count) out.count[i] = uint8_t(h.count);
 }
 
 }  // namespace
 
-void cast_rays(const SurfelTree &tree, const double *rays, size_t n, const TraceOptions &opt,
-               float pixel_angle, int threads, CastOutput out, BatchStats *stats) {
+template <class T>
+void cast_rays(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
+               float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
-    const auto &order = tree.order();
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
         for (size_t i = b; i < e; ++i) {
             Ray ray;
-            float len = local_ray(tree, rays + 6 * i, ray);
-            ray.spread = pixel_angle;
+            double len = local_ray(tree, rays + 6 * i, ray);
+            double rd[6];
+            for (int k = 0; k < 6; ++k) rd[k] = double(rays[6 * i + k]);
             SurfaceHit h;
-            bool hit;
-            if (stats) {
-                CountStats cs;
-                hit = closest_hit(tree, ray, opt, h, cs);
-                local.nodes += cs.nodes;
-                local.disks += cs.disks;
-                local.depth_sum += cs.max_depth;
-                local.max_depth = std::max(local.max_depth, cs.max_depth);
+            bool hit = false;
+            if (len == 0.0) {
+                ++local.invalid;
+                local.first_invalid = std::min(local.first_invalid, i);
             } else {
-                NoStats ns;
-                hit = closest_hit(tree, ray, opt, h, ns);
+                ray.spread = pixel_angle;
+                if (count) {
+                    CountStats cs;
+                    hit = closest_hit(tree, ray, opt, h, cs);
+                    add_counts(local, cs);
+                } else {
+                    NoStats ns;
+                    hit = closest_hit(tree, ray, opt, h, ns);
+                }
             }
             local.hits += hit;
-            if (out.t) out.t[i] = hit ? h.t / len : kInf;
-            if (out.normal) {
-                out.normal[3 * i] = hit ? h.n.x : 0.f;
-                out.normal[3 * i + 1] = hit ? h.n.y : 0.f;
-                out.normal[3 * i + 2] = hit ? h.n.z : 0.f;
-            }
-            if (out.color) {
-                out.color[3 * i] = hit ? h.color.x : 0.f;
-                out.color[3 * i + 1] = hit ? h.color.y : 0.f;
-                out.color[3 * i + 2] = hit ? h.color.z : 0.f;
-            }
-            if (out.radius) out.radius[i] = hit ? h.radius : 0.f;
-            if (out.index) out.index[i] = h.index >= 0 ? int32_t(order[size_t(h.index)]) : h.index;
-            if (out.count) out.count[i] = uint8_t(h.count);
+            write_hit(out, i, hit, h, len, rd, tree);
         }
         local.rays = e - b;
         merge(stats, local, m);
     });
 }
 
-void occluded(const SurfelTree &tree, const double *rays, const float *t_max, size_t n,
+template <class T>
+void occluded(const SurfelTree &tree, const T *rays, const float *t_max, size_t n,
               const TraceOptions &opt, float t_min, float pixel_angle, int threads, uint8_t *hit,
-              BatchStats *stats) {
+              bool count, BatchStats &stats) {
     std::mutex m;
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
         for (size_t i = b; i < e; ++i) {
             Ray ray;
-            float len = local_ray(tree, rays + 6 * i, ray);
-            ray.tmin = t_min * len;
-            ray.tmax = t_max[i] * len;
+            double len = local_ray(tree, rays + 6 * i, ray);
+            hit[i] = 0;
+            if (len == 0.0 || std::isnan(t_max[i])) {
+                ++local.invalid;
+                local.first_invalid = std::min(local.first_invalid, i);
+                continue;
+            }
+            ray.tmin = float(double(t_min) * len);
+            ray.tmax = float(double(t_max[i]) * len);
             ray.spread = pixel_angle;
             bool h;
-            if (stats) {
+            if (count) {
                 CountStats cs;
                 h = any_hit(tree, ray, opt, false, cs);
-                local.nodes += cs.nodes;
-                local.disks += cs.disks;
-                local.depth_sum += cs.max_depth;
-                local.max_depth = std::max(local.max_depth, cs.max_depth);
+                add_counts(local, cs);
             } else {
                 NoStats ns;
                 h = any_hit(tree, ray, opt, false, ns);
@@ -110,5 +136,14 @@ void occluded(const SurfelTree &tree, const double *rays, const float *t_max, si
         merge(stats, local, m);
     });
 }
+
+template void cast_rays<float>(const SurfelTree &, const float *, size_t, const TraceOptions &,
+                               float, int, CastOutput, bool, BatchStats &);
+template void cast_rays<double>(const SurfelTree &, const double *, size_t, const TraceOptions &,
+                                float, int, CastOutput, bool, BatchStats &);
+template void occluded<float>(const SurfelTree &, const float *, const float *, size_t,
+                              const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
+template void occluded<double>(const SurfelTree &, const double *, const float *, size_t,
+                               const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
 
 }  // namespace pointviz
