@@ -36,6 +36,43 @@ int g_checks = 0, g_failures = 0;
         }                                                                       \
     } while (0)
 
+/// The batch queries, whichever of the core's two signatures is present (statistics as a
+/// pointer, or as a flag plus a reference): the tests survive that interface change.
+template <class Tree>
+auto cast_impl(int, const Tree &t, const double *r, size_t n, const TraceOptions &o, float pa,
+               int th, CastOutput out, BatchStats *st)
+    -> decltype(cast_rays(t, r, n, o, pa, th, out, true, *st), void()) {
+    BatchStats local;
+    cast_rays(t, r, n, o, pa, th, out, st != nullptr, st ? *st : local);
+}
+template <class Tree>
+auto cast_impl(long, const Tree &t, const double *r, size_t n, const TraceOptions &o, float pa,
+               int th, CastOutput out, BatchStats *st)
+    -> decltype(cast_rays(t, r, n, o, pa, th, out, st), void()) {
+    cast_rays(t, r, n, o, pa, th, out, st);
+}
+void cast(const SurfelTree &t, const double *r, size_t n, const TraceOptions &o, float pa, int th,
+          CastOutput out, BatchStats *st) {
+    cast_impl(0, t, r, n, o, pa, th, out, st);
+}
+template <class Tree>
+auto occ_impl(int, const Tree &t, const double *r, const float *tm, size_t n,
+              const TraceOptions &o, float tmin, float pa, int th, uint8_t *hit, BatchStats *st)
+    -> decltype(occluded(t, r, tm, n, o, tmin, pa, th, hit, true, *st), void()) {
+    BatchStats local;
+    occluded(t, r, tm, n, o, tmin, pa, th, hit, st != nullptr, st ? *st : local);
+}
+template <class Tree>
+auto occ_impl(long, const Tree &t, const double *r, const float *tm, size_t n,
+              const TraceOptions &o, float tmin, float pa, int th, uint8_t *hit, BatchStats *st)
+    -> decltype(occluded(t, r, tm, n, o, tmin, pa, th, hit, st), void()) {
+    occluded(t, r, tm, n, o, tmin, pa, th, hit, st);
+}
+void any_hits(const SurfelTree &t, const double *r, const float *tm, size_t n, const TraceOptions &o,
+         float tmin, float pa, int th, uint8_t *hit, BatchStats *st) {
+    occ_impl(0, t, r, tm, n, o, tmin, pa, th, hit, st);
+}
+
 /// A cloud in world coordinates (double positions, as the Python layer hands them over).
 struct Cloud {
     std::vector<double> p;   // (n, 3)
@@ -133,10 +170,10 @@ void check_against_brute(const char *name, const Cloud &cl, const SurfelTree &tr
     std::vector<uint8_t> cnt(n), occ(n);
     CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
     BatchStats st;
-    cast_rays(tree, rays.data(), n, exact_options(box_depth), 0.f, 2, out, &st);
+    cast(tree, rays.data(), n, exact_options(box_depth), 0.f, 2, out, &st);
     CHECK(st.rays == n, "%s: stats counted %zu rays of %zu", name, size_t(st.rays), n);
     std::vector<float> tmax(n, 1e30f);
-    occluded(tree, rays.data(), tmax.data(), n, exact_options(box_depth), 0.f, 0.f, 2, occ.data(),
+    any_hits(tree, rays.data(), tmax.data(), n, exact_options(box_depth), 0.f, 0.f, 2, occ.data(),
              nullptr);
     for (size_t i = 0; i < n; ++i) {
         Oracle o = brute(cl, &rays[6 * i]);
@@ -242,7 +279,7 @@ void test_one_surfel() {
     std::vector<float> t(7);
     CastOutput out;
     out.t = t.data();
-    cast_rays(*tree, rays.data(), 7, exact_options(255), 0.f, 1, out, nullptr);
+    cast(*tree, rays.data(), 7, exact_options(255), 0.f, 1, out, nullptr);
     CHECK(std::fabs(t[0] - 7.f) < 1e-5f, "front hit t = %g", t[0]);
     CHECK(std::fabs(t[1] - 6.5f) < 1e-5f, "back hit t = %g (direction length 2)", t[1]);
     CHECK(std::isinf(t[3]) && std::isinf(t[4]) && std::isinf(t[5]), "misses: %g %g %g", t[3], t[4], t[5]);
@@ -324,7 +361,7 @@ void test_scales() {
         CastOutput out;
         out.t = t.data();
         out.index = idx.data();
-        cast_rays(*tree, rays.data(), n, exact_options(3), 0.f, 2, out, nullptr);
+        cast(*tree, rays.data(), n, exact_options(3), 0.f, 2, out, nullptr);
         for (size_t i = 0; i < n; ++i) {
             CHECK(!std::isnan(t[i]) && t[i] >= 0.f, "extreme scale %g [%zu]: t %g", scale, i, t[i]);
             CHECK(idx[i] >= -1 && idx[i] < int32_t(cl.size()), "extreme scale %g: index %d", scale, idx[i]);
@@ -362,8 +399,8 @@ void test_degenerate_rays_and_surfels() {
         o.box_depth = 3;
         CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
         BatchStats st;
-        cast_rays(*tree, rays.data(), n, o, 0.002f, 2, out, &st);
-        occluded(*tree, rays.data(), tmax.data(), n, o, 0.f, 0.002f, 2, occ.data(), &st);
+        cast(*tree, rays.data(), n, o, 0.002f, 2, out, &st);
+        any_hits(*tree, rays.data(), tmax.data(), n, o, 0.f, 0.002f, 2, occ.data(), &st);
         for (size_t i = 0; i + 1 < n; ++i)
             CHECK(std::isinf(t[i]) || (t[i] >= 0.f && !std::isnan(t[i])), "degenerate ray %zu: t %g", i, t[i]);
         CHECK(std::isinf(t[0]) && std::isinf(t[1]) && std::isinf(t[2]),
@@ -393,7 +430,7 @@ void test_lod_and_interpolation_are_clean() {
             o.box_depth = 4;
             o.lod_pixels = 4.f;
             CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
-            cast_rays(*tree, rays.data(), n, o, 0.01f, 2, out, nullptr);
+            cast(*tree, rays.data(), n, o, 0.01f, 2, out, nullptr);
             for (size_t i = 0; i < n; ++i) {
                 if (std::isinf(t[i])) continue;
                 CHECK(t[i] >= 0.f && t[i] < 2.f, "lod [%zu]: t %g", i, t[i]);
