@@ -156,7 +156,7 @@ def test_cli_render_interrupted_leaves_no_file(tmp_path):
         cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     seen = ""
     try:
-        while "render [" not in seen:  # the render has started
+        while "render [" not in seen and "render:" not in seen:  # the render has started
             ch = proc.stderr.read(1)
             if not ch:
                 break
