@@ -98,7 +98,7 @@ def base_parser(description: str, name: str) -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, default=common.default_data_dir(),
                    help="shared data folder (default: <repo>/../shared/data)")
     p.add_argument("--out", type=Path, default=common.REPO_ROOT / "benchmarks" / "results" / name,
-                   help="results folder for JSON and PNG (default benchmarks/results/%(prog)s)")
+                   help=f"results folder for JSON and PNG (default benchmarks/results/{name}/)")
     p.add_argument("--quick", action="store_true",
                    help=f"smoke run: {QUICK_SIZE:,} surfels, {QUICK_PIXELS}x{QUICK_PIXELS}, repeat 1")
     p.add_argument("--repeat", type=int, default=3,
