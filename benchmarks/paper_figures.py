@@ -112,9 +112,33 @@ def base_parser(description: str, name: str) -> argparse.ArgumentParser:
 
 
 def machine_info() -> dict:
-    """Platform, Python, CPU count and the load average when the run started."""
+    """Platform, Python, CPU count, load average, and which code was measured.
+
+    The code is the git commit of the repository (with ``dirty`` when tracked files differ from
+    it) and the modification time of the compiled core that was imported: the core is rebuilt
+    in place while people work, so a result says which build produced it.
+    """
+    import subprocess
+
+    def git(*cmd):
+        try:
+            return subprocess.run(["git", *cmd], cwd=common.REPO_ROOT, capture_output=True,
+                                  text=True, check=False, timeout=10).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+
+    core = None
+    try:
+        from pointviz import _core
+
+        core = time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(os.path.getmtime(_core.__file__)))
+    except (ImportError, OSError):
+        pass
     return {"platform": platform.platform(), "python": platform.python_version(),
-            "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg())}
+            "cpu_count": os.cpu_count(), "loadavg": list(os.getloadavg()),
+            "git_commit": git("rev-parse", "--short", "HEAD"),
+            "git_dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "core_built": core}
 
 
 def write_json(out_dir: Path, name: str, data: dict) -> Path:
