@@ -13,11 +13,20 @@ from .errors import CancelledError, PointvizError
 COMMANDS = ("render", "view", "compare", "path", "info")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line (``pointviz: error: ...``) and exit status 2, like every other
+    error of the CLI; ``--help`` still prints the full usage."""
+
+    def error(self, message):
+        self.exit(2, f"pointviz: error: {self.prog.split()[-1]}: {' '.join(message.split())}\n"
+                     if " " in self.prog else f"pointviz: error: {' '.join(message.split())}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="pointviz", description="Ray trace point clouds as surfels; view, compare, animate.")
     parser.add_argument("--version", action="version", version=f"pointviz {_version()}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name in COMMANDS:
         try:

@@ -51,6 +51,10 @@ RADIUS_K = 8
 # 1.36x on the +-0.25 jittered grid (jitter shortens the nearest-neighbour distance).
 RADIUS_FACTOR = 0.65
 
+# Largest extent of a cloud: surfels are stored in float32 relative to the cloud's centre, and
+# squared distances (normal and radius estimation) must stay finite in float64.
+MAX_EXTENT = 1e30
+
 # Points per block when querying neighbours, to bound memory (~NORMAL_K * 3 * 8 bytes per point).
 _BLOCK = 65536
 
@@ -130,9 +134,13 @@ def _validate_radii(value, n: int) -> np.ndarray:
         raise InputError(
             f"radii: {bad.size} values are zero or negative (first at row {bad[0]}: {arr[bad[0]]})"
         )
-    out = np.ascontiguousarray(arr, dtype=np.float32)
+    with np.errstate(over="ignore"):
+        out = np.ascontiguousarray(arr, dtype=np.float32)
     if not (out > 0).all():  # positive float64 values that underflow float32
         raise InputError("radii: values too small for float32 (underflow to 0)")
+    if not np.isfinite(out).all():
+        bad = np.flatnonzero(~np.isfinite(out))
+        raise InputError(f"radii: {bad.size} values overflow float32 (first at row {bad[0]}: {arr[bad[0]]})")
     return out
 
 
@@ -580,6 +588,11 @@ class PointCloud:
         if n == 0:
             raise InputError("points: the cloud is empty (0 points)")
         self._points = np.ascontiguousarray(pts, dtype=np.float64)
+        extent = float(np.max(np.ptp(self._points, axis=0)))
+        if not extent <= MAX_EXTENT:
+            raise InputError(
+                f"points: the cloud spans {extent:.3g} units, beyond what float32 surfels can "
+                f"resolve (limit {MAX_EXTENT:.0e}); check for corrupt or mis-scaled coordinates")
         self._points.setflags(write=False)
         self._normals = None if normals is None else _validate_normals(normals, n)
         self._normals_given = normals is not None

@@ -41,6 +41,17 @@ def to_srgb8(color: np.ndarray, exposure: float = 1.0, mode: str = "aces") -> np
     return np.round(linear_to_srgb(tonemap(color, exposure, mode)) * 255.0).astype(np.uint8)
 
 
+IMAGE_SUFFIXES = (".png", ".exr")
+
+
+def check_image_path(path, overwrite: bool = False) -> Path:
+    """An output image path: a supported extension, a folder that exists, no silent overwrite."""
+    p = Path(path)
+    if p.suffix.lower() not in IMAGE_SUFFIXES:
+        raise InputError(f"{p}: unsupported image format {p.suffix or '(none)'}; use .png or .exr")
+    return check_output_path(p, overwrite)
+
+
 def encode_png(pixels: np.ndarray) -> bytes:
     """PNG bytes of an (h, w, c) uint8 or uint16 array (c in 1, 3, 4)."""
     arr = np.asarray(pixels)

@@ -800,6 +800,8 @@ class CameraPath:
                 raise InputError(f"missing key {key!r}")
         if not isinstance(data["keyframes"], list):
             raise InputError("keyframes must be a list")
+        if not data["keyframes"]:
+            raise InputError("keyframes is empty: a camera path needs at least one keyframe")
         path = cls(width=data["width"], height=data["height"], fps=data["fps"],
                    easing=data["easing"])
         for i, item in enumerate(data["keyframes"]):

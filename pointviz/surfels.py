@@ -45,6 +45,9 @@ AUTO_BOX_BYTES_PER_SURFEL = 1.5
 
 _ALL_LEVELS = 255
 
+#: Most surfels in one tree (27 bits of index in the 32-byte node).
+MAX_SURFELS = 2**27 - 1
+
 
 def _auto_box_depth(n_surfels: int, leaf_size: int) -> int:
     budget_nodes = AUTO_BOX_BYTES_PER_SURFEL * n_surfels / 24.0
@@ -161,6 +164,9 @@ class SurfelScene:
         n = len(points)
         if n == 0:
             raise InputError("cloud: has no points")
+        if n > MAX_SURFELS:
+            raise InputError(f"cloud: {n} points, more than one tree holds ({MAX_SURFELS}); "
+                             "split the cloud into several scene objects")
         bd = knobs["box_depth"]
         if bd == "auto":
             bd = _auto_box_depth(n, leaf_size)

@@ -58,6 +58,8 @@ namespace {
 
 template <class T>
 using CArray = nb::ndarray<const T, nb::c_contig, nb::device::cpu>;
+/// Any C-contiguous CPU array; the binding checks its dtype itself.
+using AnyArray = nb::ndarray<nb::c_contig, nb::device::cpu>;
 
 /// A fresh numpy array that owns its buffer.
 template <class T>
@@ -134,7 +136,7 @@ nb::tuple cast_binding(const SurfelTree &t, CArray<T> rays, const TraceOptions &
         nb::gil_scoped_release release;
         cast_rays(t, rays.data(), n, opt, pixel_angle, threads, out, want_stats, st);
     }
-    check_invalid(st, "rays have NaN/inf values or a zero direction");
+    check_invalid(st, "rays have NaN/inf values or a zero direction (length outside [1e-30, 1e30])");
     nb::dict d;
     d["t_hit"] = at; d["normals"] = an; d["colors"] = ac; d["radii"] = ar;
     d["index"] = ai; d["count"] = acnt; d["positions"] = ap;
@@ -416,12 +418,29 @@ NB_MODULE(_core, m) {
             d["count"] = acnt; d["index"] = aidx; d["boxes"] = abx; d["order"] = aord;
             return d;
         })
-        .def("cast", &cast_binding<float>, "rays"_a, "options"_a, "pixel_angle"_a = 0.f,
-             "threads"_a = 0, "stats"_a = true)
-        .def("cast", &cast_binding<double>, "rays"_a, "options"_a, "pixel_angle"_a = 0.f,
-             "threads"_a = 0, "stats"_a = true)
-        .def("occluded", &occluded_binding<float>, "rays"_a, "t_max"_a, "options"_a,
-             "t_min"_a = 0.f, "pixel_angle"_a = 0.f, "threads"_a = 0, "stats"_a = true)
-        .def("occluded", &occluded_binding<double>, "rays"_a, "t_max"_a, "options"_a,
-             "t_min"_a = 0.f, "pixel_angle"_a = 0.f, "threads"_a = 0, "stats"_a = true);
+        // One entry point per query, dispatching on the rays' dtype here: nanobind overloads
+        // would let a float64 array be converted to float32 when another argument needs a
+        // conversion pass, silently losing the precision that georeferenced rays need.
+        .def("cast", [](const SurfelTree &t, AnyArray rays, const TraceOptions &opt,
+                        double pixel_angle, int threads, bool want_stats) {
+            if (rays.dtype() == nb::dtype<float>())
+                return cast_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), opt,
+                                           float(pixel_angle), threads, want_stats);
+            if (rays.dtype() == nb::dtype<double>())
+                return cast_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), opt,
+                                            float(pixel_angle), threads, want_stats);
+            throw nb::type_error("rays: expected a float32 or float64 array");
+        }, "rays"_a, "options"_a, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true)
+        .def("occluded", [](const SurfelTree &t, AnyArray rays, CArray<float> t_max,
+                            const TraceOptions &opt, double t_min, double pixel_angle, int threads,
+                            bool want_stats) {
+            if (rays.dtype() == nb::dtype<float>())
+                return occluded_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), t_max, opt,
+                                               float(t_min), float(pixel_angle), threads, want_stats);
+            if (rays.dtype() == nb::dtype<double>())
+                return occluded_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), t_max, opt,
+                                                float(t_min), float(pixel_angle), threads, want_stats);
+            throw nb::type_error("rays: expected a float32 or float64 array");
+        }, "rays"_a, "t_max"_a, "options"_a, "t_min"_a = 0.0, "pixel_angle"_a = 0.0,
+           "threads"_a = 0, "stats"_a = true);
 }

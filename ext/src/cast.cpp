@@ -12,8 +12,12 @@ namespace {
 /// Rays handled per claimed chunk: large enough to amortise scheduling, small enough to balance.
 constexpr size_t kRayGrain = 1024;
 
+/// Directions shorter or longer than this cannot be traced: t in the caller's units would
+/// leave float range (1e-30 * 1e30 = 1, so the bounds are symmetric around unit length).
+constexpr double kMinDirection = 1e-30, kMaxDirection = 1e30;
+
 /// World ray -> local unit ray. Returns the caller's direction length, or 0 for a ray that
-/// cannot be traced (NaN/inf anywhere, or a zero direction).
+/// cannot be traced (NaN/inf anywhere, or a zero or out-of-range direction).
 template <class T>
 inline double local_ray(const SurfelTree &tree, const T *r, Ray &ray) {
     const double *o = tree.origin();
@@ -24,7 +28,7 @@ inline double local_ray(const SurfelTree &tree, const T *r, Ray &ray) {
         finite = finite && std::isfinite(v[k]);
     }
     double len = std::sqrt(v[3] * v[3] + v[4] * v[4] + v[5] * v[5]);
-    if (!finite || !(len > 0.0) || !std::isfinite(len)) return 0.0;
+    if (!finite || !(len >= kMinDirection && len <= kMaxDirection)) return 0.0;
     ray.o = {float(v[0] - o[0]), float(v[1] - o[1]), float(v[2] - o[2])};
     ray.d = {float(v[3] / len), float(v[4] / len), float(v[5] / len)};
     return len;

@@ -186,14 +186,15 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                     nd.cone_q = kConeNeverQ;
                 } else {
                     float q = std::ceil((std::sin(theta) + kConeSlack) * kConeScale);
-                    nd.cone_q = uint16_t(std::min(q, float(kConeNeverQ - 1)));
+                    // (written so that a NaN from an infinite radius lands on the safe side)
+                    nd.cone_q = q < float(kConeNeverQ - 1) ? uint16_t(q) : uint16_t(kConeNeverQ - 1);
                 }
                 Vec3 mc = sm.csum / float(r.size());
                 uint32_t slab_q = kNoSlab;
                 if (!degenerate && radius > 0.f) {
                     // Rounding margin: float error of the dot products, relative to the radius.
                     float q = std::ceil((h * (1.f + 1e-5f) + 1e-6f * radius) / radius * 255.f);
-                    slab_q = uint32_t(std::min(q, float(kNoSlab)));
+                    slab_q = q < float(kNoSlab) ? uint32_t(q) : kNoSlab;  // NaN: no slab
                 }
                 nd.rgb_slab = (pack_rgb(mc.x, mc.y, mc.z) & 0xffffffu) | (slab_q << 24);
             }

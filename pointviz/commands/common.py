@@ -21,7 +21,8 @@ def add_render_options(p) -> None:
     g.add_argument("--camera", metavar="CAM.json", help="camera file (from the viewer's Copy camera)")
     g.add_argument("--width", type=int, default=None, help="image width (default 640)")
     g.add_argument("--height", type=int, default=None, help="image height (default 480)")
-    g.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees")
+    g.add_argument("--fov", type=float, default=None,
+                   help="vertical field of view in degrees (default 40, or the camera file's)")
     g.add_argument("--spp", type=int, default=4, help="samples per pixel")
     g.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
     g.add_argument("--reflections", type=int, default=1, help="reflection bounces")
@@ -91,7 +92,10 @@ def make_scene_and_camera(args):
     elif demo_camera is not None:
         camera = demo_camera
     else:
-        camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded, fov_deg=args.fov)
+        camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded,
+                            fov_deg=40.0 if args.fov is None else args.fov)
+    if args.fov is not None and args.fov != camera.fov_deg:
+        camera = camera.replace(fov_deg=args.fov)  # validates: names fov_deg when out of range
     if args.width or args.height:
         w = args.width or int(round(camera.width * (args.height / camera.height)))
         h = args.height or int(round(camera.height * (args.width / camera.width)))

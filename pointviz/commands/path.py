@@ -59,7 +59,7 @@ def _camera_path(args, scene):
             raise InputError(f"--orbit: expected seconds > 0, got {args.orbit}")
         return CameraPath.orbit(scene, seconds=args.orbit, fps=args.fps or DEFAULT_FPS,
                                 width=args.width or 640, height=args.height or 480,
-                                fov_deg=args.fov)
+                                fov_deg=40.0 if args.fov is None else args.fov)
     return CameraPath.load(args.path)
 
 

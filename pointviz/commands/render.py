@@ -18,10 +18,10 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..imageio import check_output_path
+    from ..imageio import check_image_path
     from ..render import render
 
-    check_output_path(args.output, args.overwrite)  # fail before the expensive part
+    check_image_path(args.output, args.overwrite)  # fail before the expensive part
     scene, camera = make_scene_and_camera(args)
     bar = ProgressBar("render", enabled=True if args.progress else None)
     frame = render(scene, camera, progress=bar, **render_kwargs(args))

@@ -129,11 +129,6 @@ def test_thin_sheets_with_lod_never_face_away(pixel_angle):
         np.testing.assert_allclose(z, side * 0.002, atol=0.0021)
 
 
-@pytest.mark.xfail(strict=True, reason="coarse LoD loses thin two-sided structures: a node "
-                   "holding both sheets has a near-zero mean normal, so its LoD disk is oriented "
-                   "arbitrarily and 32% of rays from below miss (a single sheet: 0%). Fix in "
-                   "trace.h: do not stop LoD at nodes whose cone spans more than a hemisphere "
-                   "(cone == never-cull), descend until children face one way")
 def test_thin_sheets_with_coarse_lod_keep_their_coverage():
     scene = SurfelScene(_fine_sheets(), variant="full")
     for side in (+1.0, -1.0):

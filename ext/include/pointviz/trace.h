@@ -215,7 +215,10 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
         } else {
             const uint32_t c0 = nd.index();
             float t2 = lod ? dot(nd.c - ray.o, ray.d) : 0.f;
-            if (lod && t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
+            // A node whose normals span more than a hemisphere (two sheets of a thin part, a
+            // closed piece) has no meaningful mean plane: its disk would face anywhere, so LoD
+            // descends until the children face one way.
+            if (lod && nd.has_cone() && t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
                 // Small enough: intersect the children as disks and let the policy blend them.
                 for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
                     const Node &cn = nodes[ch];
