@@ -254,3 +254,20 @@ def test_saved_files_get_normal_permissions_and_exr_round_trips(ball, tmp_path):
     with exr_mod.File(str(exr)) as f:
         rgb = f.channels()["RGB"].pixels
     np.testing.assert_array_equal(rgb, frame.color)
+
+
+def test_silhouette_coverage_matches_analytic_sphere(ball):
+    """Antialiased edges: alpha equals the fraction of the pixel the exact sphere covers
+    (16x16 supersampled analytic oracle), so disks do not make the outline ragged."""
+    cam = Camera.look_at((0.0, 1.5, 4.0), (0, 1.5, 0), fov_deg=40, width=64, height=48)
+    frame = pointviz.render(Scene(ball, ground="none"), cam, spp=64, shadows=False,
+                            reflections=0, lod_pixels=0)
+    k = 16
+    fine = cam.with_size(64 * k, 48 * k)
+    t, _ = sphere_oracle(fine, np.array([0, 1.5, 0]), 1.0)
+    cover = np.isfinite(t).reshape(48, k, 64, k).mean(axis=(1, 3))
+    edge = (cover > 0.02) & (cover < 0.98)
+    assert edge.sum() > 60
+    err = np.abs(frame.alpha - cover)
+    assert err[edge].mean() < 0.08
+    assert err[~edge].max() < 0.1
