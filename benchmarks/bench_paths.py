@@ -115,7 +115,7 @@ def temporal_metrics(frames: np.ndarray) -> dict:
 
 def flicker(scene, args, settings) -> None:
     from pointviz.path import CameraPath
-    from pointviz.render import render
+    from pointviz.rendering import render
 
     w, h = args.flicker_size
     n = args.flicker_frames

@@ -32,8 +32,8 @@ _LAZY = {
     "DirectionalLight": "scene",
     "PointLight": "scene",
     "AreaLight": "scene",
-    "render": "render",
-    "Frame": "render",
+    "render": "rendering",
+    "Frame": "rendering",
     "compare": "compare",
     "view": "viewer",
 }

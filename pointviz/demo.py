@@ -22,8 +22,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from .commands.common import ProgressBar
-    from .imageio import atomic_write_bytes
-    from .render import render
+    from .images import atomic_write_bytes
+    from .rendering import render
     from .shapes import demo_scene
 
     out = Path(args.out)

@@ -167,7 +167,7 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
     The SurfelScene trees are built here too when the scene had not built them yet (the serial
     render needs them anyway, and the origin of each tree is part of the spec).
     """
-    from .render import as_scene
+    from .rendering import as_scene
     from .surfels import SurfelScene
 
     scene = as_scene(scene_or_cloud)

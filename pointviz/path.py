@@ -975,8 +975,8 @@ def frame_png(scene: Any, camera: Camera, render_kwargs: dict, cancel: Any = Non
         Keyword arguments of :func:`pointviz.render`.
     cancel : threading.Event or callable, optional
     """
-    from .imageio import encode_png
-    from .render import render
+    from .images import encode_png
+    from .rendering import render
 
     frame = render(scene, camera, cancel=cancel, **render_kwargs)
     return encode_png(frame.to_srgb8())
@@ -1007,7 +1007,7 @@ def _settings_of(render_kwargs: dict) -> dict:
     """The image-affecting render settings, defaults filled in (so explicit defaults match)."""
     import inspect
 
-    from .render import render
+    from .rendering import render
 
     defaults = {k: p.default for k, p in inspect.signature(render).parameters.items()
                 if p.default is not inspect.Parameter.empty}
@@ -1151,8 +1151,8 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     import time
 
     from .distributed import render_frames, scene_spec
-    from .imageio import atomic_write_bytes
-    from .render import _cancel_check
+    from .images import atomic_write_bytes
+    from .rendering import _cancel_check
 
     cameras, path_fps = _path_cameras(path, width, height)
     fps = path_fps if fps is None else _fps(fps)

@@ -36,7 +36,7 @@ def check_video_path(path, overwrite: bool = False) -> Path:
     overwrite : bool
         Allow replacing an existing file.
     """
-    from .imageio import check_output_path
+    from .images import check_output_path
 
     p = Path(path)
     if p.suffix.lower() not in VIDEO_EXTENSIONS:

@@ -15,7 +15,7 @@ import pytest
 from pointviz import render
 from pointviz.cli import main
 from pointviz.errors import CancelledError, FileFormatError, InputError
-from pointviz.imageio import encode_png
+from pointviz.images import encode_png
 from pointviz.path import MANIFEST_NAME, CameraPath, is_complete_png, render_path
 from pointviz.scene import Scene
 from pointviz.shapes import sphere, torus

@@ -185,7 +185,7 @@ def test_save_png_8_and_16_bit_and_refuse_overwrite(ball, tmp_path):
 
 
 def test_sixteen_bit_png_round_trip(tmp_path):
-    from pointviz.imageio import encode_png
+    from pointviz.images import encode_png
 
     px = (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000)
     (tmp_path / "x.png").write_bytes(encode_png(px))

@@ -18,8 +18,8 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..imageio import check_image_path
-    from ..render import render
+    from ..images import check_image_path
+    from ..rendering import render
 
     check_image_path(args.output, args.overwrite)  # fail before the expensive part
     scene, camera = make_scene_and_camera(args)

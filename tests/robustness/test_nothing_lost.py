@@ -15,7 +15,7 @@ import pytest
 import pointviz
 from pointviz import Camera, PointCloud
 from pointviz.errors import CancelledError
-from pointviz.imageio import atomic_write_bytes, save_image
+from pointviz.images import atomic_write_bytes, save_image
 
 from . import samples as S
 

@@ -47,7 +47,7 @@ class Frame:
 
     def to_srgb8(self, exposure: float = 1.0, tonemap: str = "aces") -> np.ndarray:
         """(h, w, 3) uint8 display image."""
-        from .imageio import to_srgb8
+        from .images import to_srgb8
 
         return to_srgb8(self.color, exposure, tonemap)
 
@@ -57,7 +57,7 @@ class Frame:
 
         The file appears atomically; an existing file is kept unless ``overwrite=True``.
         """
-        from .imageio import save_image
+        from .images import save_image
 
         return save_image(path, self.color, alpha=self.alpha if alpha else None, bits=bits,
                           exposure=exposure, tonemap_mode=tonemap, overwrite=overwrite)
