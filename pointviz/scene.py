@@ -62,7 +62,7 @@ class Material:
         Ground only: second colour and cell size of a checkerboard.
     """
 
-    color: tuple = (0.8, 0.8, 0.8)
+    color: tuple = (0.7, 0.7, 0.7)
     use_point_colors: bool = True
     diffuse: float = 1.0
     specular: float = 0.15
@@ -110,7 +110,7 @@ class Material:
 
 #: Ground presets by name (the CLI's ``--ground``).
 GROUND_MATERIALS = {
-    "matte": Material(color=(0.75, 0.75, 0.73), specular=0.02, use_point_colors=False),
+    "matte": Material(color=(0.6, 0.6, 0.58), specular=0.02, use_point_colors=False),
     "mirror": Material(color=(0.6, 0.6, 0.62), specular=0.0, mirror=0.6, use_point_colors=False),
     "glossy": Material(color=(0.7, 0.7, 0.7), specular=0.2, mirror=0.3, roughness=0.05,
                        use_point_colors=False),
@@ -181,7 +181,7 @@ def default_lights(camera, up) -> list:
     """A soft key light over the camera's left shoulder; the sky adds the fill."""
     up = np.asarray(up, dtype=np.float64)
     direction = 1.0 * up - 0.55 * np.asarray(camera.forward) - 0.45 * np.asarray(camera.right)
-    return [DirectionalLight(direction=tuple(direction), intensity=1.1, angle_deg=3.0)]
+    return [DirectionalLight(direction=tuple(direction), intensity=1.0, angle_deg=3.0)]
 
 
 @dataclass
@@ -219,7 +219,7 @@ class Scene:
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
-                 up=None, ambient: float = 0.3, sky=None, **scene_options):
+                 up=None, ambient: float = 0.25, sky=None, **scene_options):
         from .surfels import SurfelScene
 
         if not isinstance(clouds, (list, tuple)):
@@ -286,22 +286,38 @@ class Scene:
             obj.geometry = SurfelScene(obj.geometry, **self._scene_options)
         return obj.geometry
 
+    def _extent(self, obj) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds (with disk radii) and ground level of one object, computed once per geometry:
+        every frame of a path or viewer session would otherwise scan all points again."""
+        g = obj.geometry
+        cloud = getattr(g, "cloud", g)
+        cache = self.__dict__.setdefault("_extents", {})
+        hit = cache.get(id(cloud))
+        if hit is not None and hit[0] is cloud:
+            return hit[1]
+        pts = getattr(cloud, "points", None)
+        if pts is None:
+            lo, hi = (np.asarray(v, dtype=np.float64) for v in g.bounds())
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                for z in (lo[2], hi[2])])
+            low = float(np.min(corners @ self.up))
+        else:
+            pts = np.asarray(pts)
+            radii = getattr(cloud, "radii", None)
+            r = float(np.max(radii)) if radii is not None else 0.0
+            lo, hi = pts.min(axis=0) - r, pts.max(axis=0) + r
+            h = pts @ self.up
+            r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
+            low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
+                   else h.min())
+            low = float(low) - r99
+        cache[id(cloud)] = (cloud, (lo, hi, low))
+        return lo, hi, low
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of every object (including disk radii)."""
-        los, his = [], []
-        for obj in self.objects:
-            g = obj.geometry
-            cloud = getattr(g, "cloud", g)
-            pts = getattr(cloud, "points", None)
-            if pts is None and hasattr(g, "bounds"):
-                lo, hi = g.bounds()
-            else:
-                pts = np.asarray(pts)
-                r = float(np.max(cloud.radii)) if hasattr(cloud, "radii") else 0.0
-                lo, hi = pts.min(axis=0) - r, pts.max(axis=0) + r
-            los.append(lo)
-            his.append(hi)
-        return np.min(los, axis=0), np.max(his, axis=0)
+        ext = [self._extent(obj) for obj in self.objects]
+        return np.min([e[0] for e in ext], axis=0), np.max([e[1] for e in ext], axis=0)
 
     @property
     def points(self) -> np.ndarray:
@@ -318,23 +334,7 @@ class Scene:
         """
         lo, hi = self.bounds()
         center = 0.5 * (lo + hi)
-        heights = []
-        for obj in self.objects:
-            g = obj.geometry
-            cloud = getattr(g, "cloud", g)
-            pts = getattr(cloud, "points", None)
-            if pts is None:
-                blo, bhi = g.bounds()
-                corners = np.array([[x, y, z] for x in (blo[0], bhi[0]) for y in (blo[1], bhi[1])
-                                    for z in (blo[2], bhi[2])])
-                heights.append(float(np.min(corners @ self.up)))
-                continue
-            h = np.asarray(pts) @ self.up
-            r = float(np.quantile(cloud.radii, 0.99)) if hasattr(cloud, "radii") else 0.0
-            low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
-                   else h.min())
-            heights.append(float(low) - r)
-        level = min(heights)
+        level = min(self._extent(obj)[2] for obj in self.objects)
         return center + (level - center @ self.up) * self.up
 
     def to_core(self, camera, lod_pixels: float):

@@ -57,8 +57,8 @@ struct Light {
 
 /// Sky seen by misses and the ambient term: a gradient from horizon to zenith.
 struct Sky {
-    Vec3 zenith{0.55f, 0.65f, 0.8f};
-    Vec3 horizon{0.9f, 0.9f, 0.92f};
+    Vec3 zenith{0.45f, 0.55f, 0.72f};
+    Vec3 horizon{0.82f, 0.84f, 0.88f};
     Vec3 below{0.35f, 0.33f, 0.3f};
     Vec3 up{0.f, 1.f, 0.f};
     float ambient = 0.25f;          ///< strength of the sky's ambient light on surfaces
