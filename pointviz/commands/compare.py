@@ -1,0 +1,44 @@
+"""``pointviz compare INPUT -o DIR``: surfels against meshes reconstructed from the same points,
+rendered with the same shading, scored against a reference; writes DIR/index.html."""
+
+from __future__ import annotations
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("compare", help="quality/speed report: surfels vs reconstructed meshes",
+                       description=__doc__)
+    p.add_argument("input", help="point cloud, mesh, .conf scans, or demo/sphere/torus/box")
+    p.add_argument("--reference", metavar="MESH", help="reference mesh (default: the input "
+                   "mesh, the exact shape, else surfels at full detail)")
+    p.add_argument("--camera", metavar="CAM.json", help="camera file")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="report folder")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated subset of discs,surfels-paper,surfels-smooth,poisson,"
+                        "ball-pivoting,alpha-shape")
+    p.add_argument("--quick", action="store_true", help="small sizes (seconds, for tests)")
+    p.add_argument("--stability", action="store_true", help="also run the stability sweeps")
+    p.add_argument("--max-points", type=int, default=None, metavar="N",
+                   help="subsample the input to N points")
+    p.add_argument("--width", type=int, default=None)
+    p.add_argument("--height", type=int, default=None)
+    p.add_argument("--spp", type=int, default=None)
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from ..compare import compare
+    from ..compare.run import Settings
+    from ..errors import InputError
+
+    settings = Settings.quick() if args.quick else Settings.full()
+    for key in ("width", "height", "spp", "max_points"):
+        value = getattr(args, key)
+        if value is not None:
+            if value < 1:
+                raise InputError(f"--{key.replace('_', '-')}: expected a positive integer, got {value}")
+            setattr(settings, key, value)
+    methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
+    doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=args.output,
+                  methods=methods, quick=args.quick, stability=args.stability, settings=settings)
+    print(f"wrote {doc['report']} ({len(doc['entries'])} method settings)")
+    return 0

@@ -1,0 +1,252 @@
+"""The comparison run: load, choose the reference, render every method and setting, score."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FileFormatError, InputError
+from . import analytic, metrics
+from .mesh import MeshGeometry
+
+#: Method names, in report order.
+METHODS = ("discs", "surfels-paper", "surfels-smooth", "poisson", "ball-pivoting", "alpha-shape")
+
+_INTERP = {"discs": "none", "surfels-paper": "paper", "surfels-smooth": "smooth"}
+
+
+@dataclass
+class Settings:
+    """Sizes and sweeps of a run. :meth:`full` for reports, :meth:`quick` for tests (< 60 s)."""
+
+    width: int = 640
+    height: int = 480
+    spp: int = 4
+    lods: tuple = (0.0, 1.0, 2.0, 4.0)
+    poisson_depths: tuple = (6, 7, 8, 9, 10)
+    max_points: int | None = None      # subsample larger inputs (uniformly, seeded)
+    generated_points: int = 200_000    # points of a generated shape
+    alpha_max_points: int = 300_000    # alpha shapes need a Delaunay tetrahedralisation
+    bpa_max_points: int = 600_000
+    seed: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def full(cls) -> Settings:
+        return cls()
+
+    @classmethod
+    def quick(cls) -> Settings:
+        return cls(width=160, height=120, spp=1, lods=(0.0, 2.0), poisson_depths=(6, 7),
+                   max_points=20_000, generated_points=12_000)
+
+
+def load_input(source, settings: Settings, reference=None):
+    """(cloud, reference (vertices, faces, smooth) or None, reference kind, description)."""
+    from .. import io
+
+    if isinstance(source, str) and source in analytic.SHAPES:
+        cloud, (v, f) = analytic.shape(source, settings.generated_points)
+        smooth = source != "box"
+        return cloud, (v, f, smooth), "analytic", f"exact {source} (fine triangulation)"
+    path = Path(source)
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such file")
+    mesh = None
+    if path.suffix.lower() in (".ply", ".obj", ".off", ".stl"):
+        import open3d as o3d
+
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            m = o3d.io.read_triangle_mesh(str(path))
+        if len(m.triangles):
+            mesh = (np.asarray(m.vertices), np.asarray(m.triangles), True)
+    cloud = io.load(path, estimate=False)
+    kind, desc = "surfels-full-detail", "surfels (smooth, no LoD, 4x spp): no mesh was given"
+    if mesh is not None:
+        kind, desc = "mesh", f"the input mesh {path.name}"
+    if reference is not None:
+        rp = Path(reference)
+        import open3d as o3d
+
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            m = o3d.io.read_triangle_mesh(str(rp))
+        if not len(m.triangles):
+            raise FileFormatError(f"{rp}: --reference must be a triangle mesh (no faces read)")
+        mesh = (np.asarray(m.vertices), np.asarray(m.triangles), True)
+        kind, desc = "mesh", f"the mesh {rp.name}"
+    return cloud, mesh, kind, desc
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+def _subsample(cloud, n, seed):
+    if n is None or len(cloud) <= n:
+        return cloud
+    idx = np.sort(np.random.default_rng(seed).choice(len(cloud), n, replace=False))
+    return cloud.subset(idx)
+
+
+def render_geometry(geometry, camera, settings: Settings, lod: float = 0.0, spp=None):
+    """One frame of one geometry with the comparison's fixed scene: no ground (so alpha and
+    depth are the object's), sky, default lights, self-shadows."""
+    from ..rendering import render
+    from ..scene import Scene
+
+    scene = Scene([geometry], ground="none")
+    return render(scene, camera, spp=spp or settings.spp, lod_pixels=lod, reflections=0,
+                  seed=settings.seed, shadows=True)
+
+
+def run_methods(cloud, camera, settings: Settings, methods, reference_frame, diagonal,
+                on_frame=None, log=print):
+    """Render every method/setting and score it. ``on_frame(entry, frame, flip_map)`` is
+    called for each (to save images). Returns the list of entries."""
+    from ..surfels import SurfelScene
+
+    entries = []
+    steps0 = {}
+    # normals and radii are every method's shared preprocessing: timed once, charged to all
+    if not cloud.has_normals:
+        _, steps0["normals"] = _timed(lambda: cloud.normals)
+    else:
+        cloud.normals  # noqa: B018
+    _, t_radii = _timed(lambda: cloud.radii)
+
+    def score(method, label, sett, steps, frame, geom):
+        m, emap = metrics.compare_frames(reference_frame, frame, diagonal)
+        pre = float(sum(steps.values()))
+        ren = float(frame.stats["seconds"])
+        e = {"method": method, "label": label, "settings": sett,
+             "times": {"preprocess": pre, "render": ren, "first_image": pre + ren,
+                       "steps": steps},
+             "metrics": m, "geometry": geom, "images": {}}
+        if on_frame is not None:
+            on_frame(e, frame, emap)
+        log(f"  {label:34s} pre {pre:7.2f} s  render {ren:6.2f} s  FLIP {m['flip']:.4f}  "
+            f"normal {m['normal_error_deg']:5.1f} deg  holes {m['holes']:.3f}")
+        entries.append(e)
+
+    for method in methods:
+        if method in _INTERP:
+            ss, t_build = _timed(lambda: SurfelScene(cloud, interpolation=_INTERP[method]))
+            for lod in settings.lods:
+                steps = dict(steps0, radii=t_radii, tree=t_build)
+                frame = render_geometry(ss, camera, settings, lod=lod)
+                score(method, f"{method} lod {lod:g} px", {"interpolation": _INTERP[method],
+                      "lod_pixels": float(lod)}, steps, frame, {"surfels": len(cloud)})
+            continue
+        if method == "poisson":
+            from .reconstruct import poisson
+            runs = [(f"poisson depth {d}", (lambda d=d: poisson(cloud, d))) for d in
+                    settings.poisson_depths]
+        elif method == "ball-pivoting":
+            from .reconstruct import ball_pivoting
+            if len(cloud) > settings.bpa_max_points:
+                log(f"  ball-pivoting skipped: {len(cloud)} points > {settings.bpa_max_points}")
+                continue
+            runs = [("ball-pivoting", lambda: ball_pivoting(cloud))]
+        elif method == "alpha-shape":
+            from .reconstruct import alpha_shape
+            if len(cloud) > settings.alpha_max_points:
+                log(f"  alpha-shape skipped: {len(cloud)} points > {settings.alpha_max_points}")
+                continue
+            runs = [("alpha-shape", lambda: alpha_shape(cloud))]
+        else:
+            raise InputError(f"methods: unknown method {method!r}; expected some of {METHODS}")
+        for label, fn in runs:
+            rec = fn()
+            if len(rec.faces) == 0:
+                log(f"  {label}: no triangles, skipped")
+                continue
+            geom = MeshGeometry(rec.vertices, rec.faces, rec.colors)
+            frame = render_geometry(geom, camera, settings)
+            steps = dict(steps0, **rec.timings, bvh=geom.build_seconds)
+            score(method, label, dict(rec.params), steps, frame,
+                  {"vertices": len(rec.vertices), "faces": len(rec.faces)})
+    return entries
+
+
+def compare(input, reference=None, camera=None, out_dir="compare_out", methods=None,
+            quick: bool = False, stability: bool = False, settings: Settings | None = None,
+            overwrite: bool = True, log=print) -> dict:
+    """Compare surfels with reconstructed meshes on one input and write a report.
+
+    Parameters
+    ----------
+    input : str or os.PathLike or PointCloud
+        A point cloud / mesh file, Stanford ``.conf`` scans, or a generated shape
+        (``demo``, ``sphere``, ``torus``, ``box``).
+    reference : path, optional
+        A mesh to use as the reference. Default: the input itself when it is a mesh, the exact
+        shape for generated inputs, else the surfels at full detail (flagged in the report).
+    camera : Camera or path to camera JSON, optional
+        Default: ``Camera.fit`` on the cloud.
+    out_dir : path
+        Report folder (created): ``index.html``, ``metrics.json``, PNGs.
+    methods : list of str, optional
+        Subset of :data:`METHODS`.
+    quick : bool
+        Small sizes (tests).
+    stability : bool
+        Also run the stability sweeps (:mod:`pointviz.compare.stability`).
+
+    Returns
+    -------
+    dict
+        The metrics document (as in ``metrics.json``) plus ``report`` (path of index.html).
+    """
+    from ..camera import Camera
+    from . import report
+
+    settings = settings or (Settings.quick() if quick else Settings.full())
+    methods = list(METHODS if methods is None else methods)
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise InputError(f"methods: unknown {bad}; expected some of {list(METHODS)}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    name = str(input)
+    if hasattr(input, "points"):
+        cloud, ref_mesh, kind, desc = input, None, "surfels-full-detail", "surfels at full detail"
+        name = getattr(input, "name", None) or "cloud"
+    else:
+        cloud, ref_mesh, kind, desc = load_input(str(input), settings, reference)
+    cloud = _subsample(cloud, settings.max_points, settings.seed)
+    if camera is None:
+        camera = Camera.fit(cloud, width=settings.width, height=settings.height)
+    elif not hasattr(camera, "pixel_angle"):
+        camera = Camera.from_json(camera).with_size(settings.width, settings.height)
+    lo, hi = cloud.bounds
+    diagonal = float(np.linalg.norm(hi - lo))
+    log(f"compare {name}: {len(cloud)} points, {camera.width}x{camera.height}, spp {settings.spp}")
+    t0 = time.perf_counter()
+    if ref_mesh is not None:
+        ref_geom = MeshGeometry(ref_mesh[0], ref_mesh[1], smooth=ref_mesh[2])
+        reference_frame = render_geometry(ref_geom, camera, settings)
+    else:
+        from ..surfels import SurfelScene
+
+        reference_frame = render_geometry(SurfelScene(cloud, interpolation="smooth"), camera,
+                                          settings, lod=0.0, spp=4 * settings.spp)
+    log(f"  reference ({desc}): {time.perf_counter() - t0:.2f} s")
+    writer = report.ImageWriter(out, reference_frame, overwrite)
+    entries = run_methods(cloud, camera, settings, methods, reference_frame, diagonal,
+                          on_frame=writer.save, log=log)
+    doc = {"schema": "pointviz.compare/1", "input": name, "points": int(len(cloud)),
+           "reference": {"kind": kind, "description": desc},
+           "image": {"width": camera.width, "height": camera.height, "spp": settings.spp},
+           "camera": camera.to_dict(), "entries": entries}
+    if stability:
+        from .stability import run_stability
+
+        doc["stability"] = run_stability(out, quick=quick, log=log, overwrite=overwrite)
+    path = report.write_report(out, doc, writer, overwrite=overwrite)
+    doc = dict(doc, report=str(path))
+    return doc

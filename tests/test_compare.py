@@ -1,0 +1,234 @@
+"""pointviz.compare: the embreex mesh backend against surfels, metrics against numpy formulas,
+determinism, the report (schema, images, headless Chromium) and the CLI."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("embreex")
+pytest.importorskip("flip_evaluator")
+
+from pointviz import Camera, InputError, render, shapes  # noqa: E402
+from pointviz.compare import analytic, metrics  # noqa: E402
+from pointviz.compare.mesh import MeshGeometry  # noqa: E402
+from pointviz.compare.run import Settings, render_geometry  # noqa: E402
+from pointviz.compare.schema import SCHEMA, builtin_errors, validate  # noqa: E402
+from pointviz.scene import Scene  # noqa: E402
+from pointviz.surfels import SurfelScene  # noqa: E402
+
+TIMES = ("times",)
+
+
+def _frames(width=120, height=90):
+    cam = Camera.look_at((0.0, 0.7, 3.5), (0, 0, 0), width=width, height=height)
+    v, f = analytic.sphere_mesh(1.0, res=256)
+    mesh = render(Scene([MeshGeometry(v, f)], ground="none"), cam, spp=1)
+    surf = render(Scene([SurfelScene(shapes.sphere(120_000), interpolation="smooth")],
+                        ground="none"), cam, spp=1, lod_pixels=0)
+    return mesh, surf
+
+
+def test_mesh_backend_agrees_with_surfels_on_exact_sphere():
+    mesh, surf = _frames()
+    mm, sm = metrics.hit_mask(mesh.alpha), metrics.hit_mask(surf.alpha)
+    assert metrics.iou(mm, sm) > 0.98
+    # interior: away from the silhouette, where a pixel's samples all hit
+    from scipy.ndimage import binary_erosion
+
+    inner = binary_erosion(mm & sm, iterations=2)
+    assert inner.sum() > 1000
+    assert np.abs(mesh.depth[inner] - surf.depth[inner]).max() < 0.01  # radius 1
+    assert metrics.normal_error_deg(mesh.normal, surf.normal, inner) < 2.0
+    ang = np.degrees(np.arccos(np.clip((mesh.normal[inner] * surf.normal[inner]).sum(-1), -1, 1)))
+    assert np.percentile(ang, 99) < 5.0
+
+
+def test_mesh_queries_honour_tmin_tmax():
+    v, f = analytic.sphere_mesh(1.0, res=64)
+    g = MeshGeometry(v, f)
+    g.set_origin(np.zeros(3))
+    rays = np.zeros((4, 8), np.float32)
+    rays[:, 2] = 5.0
+    rays[:, 5] = -1.0
+    rays[:, 7] = np.inf
+    rays[1, 7] = 3.5      # stops before the sphere
+    rays[2, 6] = 4.5      # starts inside: the back of the sphere at t ~ 6
+    rays[3, :3] = (3.0, 0, 5)  # misses
+    t, n, c, r = g.intersect(rays)
+    assert t[0] == pytest.approx(4.0, abs=1e-3) and np.isinf(t[1]) and np.isinf(t[3])
+    assert t[2] == pytest.approx(6.0, abs=1e-3)
+    assert np.allclose(np.linalg.norm(n[[0, 2]], axis=1), 1, atol=1e-5)
+    assert (r[[0, 2]] > 0).all() and all(a.flags.c_contiguous for a in (t, n, c, r))
+    occ = g.occluded(rays)
+    assert occ.dtype == bool and occ.tolist() == [True, False, True, False]
+    rays[0, 7] = 3.99
+    assert not g.occluded(rays[:1])[0]
+
+
+def test_mesh_geometry_rejects_bad_input():
+    with pytest.raises(InputError, match="faces"):
+        MeshGeometry(np.zeros((3, 3)), np.array([[0, 1, 3]]))
+    with pytest.raises(InputError, match="vertices"):
+        MeshGeometry(np.zeros((3, 2)), np.array([[0, 1, 2]]))
+
+
+def test_psnr_of_known_noise(rng):
+    a = rng.random((40, 50, 3))
+    b = a + rng.choice([-0.05, 0.05], size=a.shape)  # mse = 0.0025 exactly
+    assert metrics.psnr(a, b) == pytest.approx(10 * np.log10(1 / 0.0025), abs=1e-9)
+    assert metrics.psnr(a, a) == np.inf
+    assert metrics.ssim(a, a) == pytest.approx(1.0)
+    assert metrics.ssim(a, b) < 1.0
+
+
+def test_iou_holes_depth_of_known_masks():
+    a = np.zeros((10, 10), bool)
+    b = np.zeros((10, 10), bool)
+    a[:, :6] = True   # 60 pixels
+    b[:, 4:] = True   # 60 pixels, 20 shared
+    assert metrics.iou(a, b) == pytest.approx(20 / 100)
+    assert metrics.holes(a, b) == pytest.approx(40 / 60)
+    d1, d2 = np.full((10, 10), 2.0), np.full((10, 10), 2.5)
+    assert metrics.depth_error(d1, d2, a & b, diagonal=5.0) == pytest.approx(0.1)
+
+
+def test_normal_error_of_known_rotations(rng):
+    n = rng.normal(size=(8, 8, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    angles = rng.uniform(0, 60, size=(8, 8))
+    axis = np.cross(n, rng.normal(size=3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    th = np.radians(angles)[..., None]
+    # Rodrigues with the axis perpendicular to n: rotates n by exactly the angle
+    rot = n * np.cos(th) + np.cross(axis, n) * np.sin(th)
+    mask = np.ones((8, 8), bool)
+    assert metrics.normal_error_deg(n, rot, mask) == pytest.approx(angles.mean(), abs=1e-6)
+
+
+def test_flip_is_zero_for_identical_and_grows_with_error(rng):
+    a = rng.random((32, 32, 3))
+    f0, m0 = metrics.flip(a, a)
+    f1, m1 = metrics.flip(a, np.clip(a + 0.2, 0, 1))
+    assert f0 == 0 and f1 > 0.05 and m1.shape == (32, 32, 3)
+
+
+def test_pareto_front():
+    from pointviz.compare.report import pareto
+
+    pts = [(1, 5), (2, 3), (3, 4), (4, 1), (0.5, 9)]
+    assert pareto(pts) == [4, 0, 1, 3]
+
+
+def test_builtin_validator_catches_violations():
+    doc = {"schema": "pointviz.compare/1", "input": "x", "reference": {"kind": "mesh"},
+           "image": {"width": 4, "height": 4, "spp": 1}, "entries": []}
+    errs = builtin_errors(doc)
+    assert any("fewer than 1" in e for e in errs)
+    doc["image"]["width"] = "4"
+    assert any("/image/width" in e for e in builtin_errors(doc))
+    with pytest.raises(InputError, match="schema"):
+        validate(doc)
+
+
+def test_identical_settings_give_identical_metrics(tmp_path):
+    from pointviz.compare import compare
+
+    def run(d):
+        doc = compare("sphere", out_dir=tmp_path / d, methods=["surfels-smooth", "poisson"],
+                      quick=True, log=lambda *_: None)
+        return [(e["label"], e["metrics"]) for e in doc["entries"]]
+
+    assert run("a") == run("b")
+
+
+def test_unknown_method_is_an_input_error(tmp_path):
+    from pointviz.compare import compare
+
+    with pytest.raises(InputError, match="methods"):
+        compare("sphere", out_dir=tmp_path, methods=["nerf"], quick=True)
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    """One quick report with every method and the stability sweeps (shared by the tests)."""
+    import pointviz
+
+    out = tmp_path_factory.mktemp("report")
+    doc = pointviz.compare("demo", out_dir=out, quick=True, stability=True, log=lambda *_: None)
+    return out, doc
+
+
+@pytest.mark.slow
+def test_report_files_schema_and_images(quick_report):
+    out, doc = quick_report
+    methods = {e["method"] for e in doc["entries"]}
+    assert {"discs", "surfels-paper", "surfels-smooth", "poisson", "ball-pivoting"} <= methods
+    data = json.loads((out / "metrics.json").read_text())
+    validate(data)
+    assert builtin_errors(data) == []
+    assert json.loads((out / "metrics.schema.json").read_text()) == json.loads(json.dumps(SCHEMA))
+    for e in data["entries"]:
+        t = e["times"]
+        assert t["first_image"] == pytest.approx(t["preprocess"] + t["render"])
+    import re
+
+    import imageio.v3 as iio
+
+    page = (out / "index.html").read_text()
+    srcs = re.findall(r'<img src="([^"]+)"', page)
+    assert "speed_accuracy.png" in srcs and "side_by_side.png" in srcs and "stability.png" in srcs
+    for s in srcs:
+        assert "/" not in s and (out / s).is_file()
+        assert iio.imread(out / s).size > 0
+    assert len(doc["stability"]["summary"]) == 6
+    assert all("trust" in s for s in doc["stability"]["summary"])
+
+
+@pytest.mark.slow
+def test_report_renders_in_headless_chromium(quick_report, tmp_path):
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("chromium is not installed")
+    out, _ = quick_report
+    shot = tmp_path / "shot.png"
+    url = (out / "index.html").as_uri()
+    base = [exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
+            f"--user-data-dir={tmp_path / 'profile'}"]
+    r = subprocess.run(base + [f"--screenshot={shot}", "--window-size=1300,2400",
+                               "--enable-logging=stderr", "--v=0", url],
+                       capture_output=True, text=True, timeout=120)
+    assert shot.is_file() and shot.stat().st_size > 10_000, r.stderr[-2000:]
+    console = [ln for ln in r.stderr.splitlines() if "CONSOLE" in ln or "Uncaught" in ln]
+    assert console == []
+    dom = subprocess.run(base + ["--dump-dom", url], capture_output=True, text=True, timeout=120)
+    assert "speed_accuracy.png" in dom.stdout and "Where methods fail" in dom.stdout
+
+
+def test_cli_compare_quick(tmp_path, capsys):
+    from pointviz.cli import main
+
+    rc = main(["compare", "sphere", "-o", str(tmp_path / "r"), "--quick", "--methods",
+               "discs,ball-pivoting"])
+    assert rc == 0
+    assert (tmp_path / "r" / "index.html").is_file()
+    assert "wrote" in capsys.readouterr().out
+    assert main(["compare", "sphere", "-o", str(tmp_path / "s"), "--quick", "--methods",
+                 "nope"]) == 2
+
+
+@pytest.mark.data
+@pytest.mark.slow
+def test_armadillo_mesh_is_its_own_reference(shared_data, tmp_path):
+    from pointviz.compare import compare
+
+    s = Settings.quick()
+    doc = compare(shared_data / "stanford_armadillo" / "Armadillo.ply", out_dir=tmp_path,
+                  methods=["surfels-smooth"], settings=s, log=lambda *_: None)
+    assert doc["reference"]["kind"] == "mesh"
+    assert doc["entries"][0]["metrics"]["iou"] > 0.9
