@@ -1,0 +1,388 @@
+"""The viewer's model: one settings object (the single source of truth) and the pure functions
+that turn it into a preview (subset, colours, point size), a render scene and a render camera.
+
+Nothing here touches a widget or a GUI toolkit, so every function runs on any thread and is
+tested without a display. Both backends (:mod:`.o3d_app`, :mod:`.pv_app`) read the settings and
+call these functions; their handlers only change the settings and then re-apply them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from ..errors import InputError
+
+#: Ways of colouring the preview.
+COLOR_MODES = ("rgb", "normal", "height", "intensity")
+#: Grounds offered by the viewer (a subset of Scene's grounds).
+GROUNDS = ("none", "matte", "mirror")
+#: How the ray-traced frame is shown: next to the preview, or over it (toggled).
+DISPLAYS = ("side", "overlay")
+#: Most points drawn by the preview. Above this the preview shows a random subset whose disks are
+#: enlarged to keep the surface closed; Mesa's software rasteriser (llvmpipe) still redraws
+#: about 1.5 M lit points at interactive rates on two cores, the ray tracer always uses all.
+DEFAULT_PREVIEW_MAX_POINTS = 1_500_000
+#: Seed of the preview subset, so the same cloud always previews the same points.
+PREVIEW_SUBSET_SEED = 0
+#: Default light, degrees: azimuth around ``up`` from the scene's first horizontal axis, and
+#: elevation above the horizon (a key light from above one side).
+DEFAULT_LIGHT_AZIMUTH_DEG = 135.0
+DEFAULT_LIGHT_ELEVATION_DEG = 50.0
+#: Largest preview point size in pixels (Open3D and VTK clamp huge points anyway).
+MAX_POINT_SIZE_PX = 64.0
+#: Smallest preview point size in pixels (1 px points leave holes; 2 px closes them).
+MIN_POINT_SIZE_PX = 2.0
+#: Viridis anchors (matplotlib's, every 1/6) for the height colour map, without matplotlib.
+_VIRIDIS = np.array([[0.267, 0.005, 0.329], [0.255, 0.267, 0.530], [0.164, 0.471, 0.558],
+                     [0.128, 0.567, 0.551], [0.135, 0.659, 0.518], [0.478, 0.821, 0.318],
+                     [0.993, 0.906, 0.144]], dtype=np.float32)
+#: Percentiles that span the intensity colour scale (robust to a few saturated returns).
+INTENSITY_PERCENTILES = (1.0, 99.0)
+
+
+@dataclass
+class ViewerSettings:
+    """Everything the user can change in the viewer. Handlers replace fields, then the backend
+    re-applies the whole object (``_apply_settings``); nothing else holds UI state.
+
+    Attributes
+    ----------
+    color_mode : {"rgb", "normal", "height", "intensity"}
+        Preview colouring (the ray tracer always uses the point colours and materials).
+    point_scale : float
+        Multiplies the preview point size computed from the surfel radii and the zoom.
+    preview_max_points : int
+        Level-of-detail threshold of the preview (see DEFAULT_PREVIEW_MAX_POINTS).
+    shadows : bool
+    reflections : int
+        Mirror/glossy bounces, 0..16.
+    spp : int
+        Samples per pixel, 1..4096.
+    lod_pixels : float
+        Ray tracer level-of-detail threshold in pixels (0 = full detail).
+    light_azimuth_deg, light_elevation_deg : float
+        Direction toward the (single directional) light, relative to the scene's up.
+    light_intensity : float
+    ground : {"none", "matte", "mirror"}, or None to keep the input scene's own ground.
+    width, height : int
+        Output size of the ray-traced frame; 0 follows the preview's size (and aspect).
+    display : {"side", "overlay"}
+    seed : int
+    threads : int or None
+    """
+
+    color_mode: str = "rgb"
+    point_scale: float = 1.0
+    preview_max_points: int = DEFAULT_PREVIEW_MAX_POINTS
+    shadows: bool = True
+    reflections: int = 1
+    spp: int = 4
+    lod_pixels: float = 1.0
+    light_azimuth_deg: float = DEFAULT_LIGHT_AZIMUTH_DEG
+    light_elevation_deg: float = DEFAULT_LIGHT_ELEVATION_DEG
+    light_intensity: float = 1.1
+    ground: str | None = "matte"
+    width: int = 0
+    height: int = 0
+    display: str = "side"
+    seed: int = 0
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> ViewerSettings:
+        """Raise InputError naming the first invalid field; return self."""
+        if self.color_mode not in COLOR_MODES:
+            raise InputError(f"color_mode: expected one of {COLOR_MODES}, got {self.color_mode!r}")
+        if self.ground is not None and self.ground not in GROUNDS:
+            raise InputError(f"ground: expected one of {GROUNDS} or None, got {self.ground!r}")
+        if self.display not in DISPLAYS:
+            raise InputError(f"display: expected one of {DISPLAYS}, got {self.display!r}")
+        for name, lo, hi in (("reflections", 0, 16), ("spp", 1, 4096), ("width", 0, 16384),
+                             ("height", 0, 16384), ("preview_max_points", 1, 2**40)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+                raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {v!r}")
+        for name in ("point_scale", "lod_pixels", "light_intensity"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"{name}: expected a finite number >= 0, got {v!r}")
+        if not -90.0 <= float(self.light_elevation_deg) <= 90.0:
+            raise InputError(f"light_elevation_deg: expected [-90, 90], got {self.light_elevation_deg!r}")
+        return self
+
+    def updated(self, **changes) -> ViewerSettings:
+        """A validated copy with some fields replaced."""
+        return replace(self, **changes)
+
+    def render_kwargs(self) -> dict:
+        """Keyword arguments of :func:`pointviz.render` for these settings."""
+        return {"shadows": bool(self.shadows), "reflections": int(self.reflections),
+                "spp": int(self.spp), "lod_pixels": float(self.lod_pixels),
+                "seed": int(self.seed), "threads": self.threads}
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# ------------------------------------------------------------------------------------ geometry
+
+
+def horizontal_basis(up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Right-handed basis ``(e1, e2, up)`` with e1, e2 spanning the plane normal to ``up``.
+
+    ``e1`` is the world axis (X, else Z) projected on that plane, so azimuth 0 points along +X
+    for a Y-up or Z-up scene.
+    """
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    e1 = ref - (ref @ u) * u
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    return e1, e2, u
+
+
+def light_direction(azimuth_deg: float, elevation_deg: float, up) -> np.ndarray:
+    """Unit vector toward the light, shape (3,) float64 (see :func:`horizontal_basis`)."""
+    e1, e2, u = horizontal_basis(up)
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    d = math.cos(el) * (math.cos(az) * e1 + math.sin(az) * e2) + math.sin(el) * u
+    return d / np.linalg.norm(d)
+
+
+def light_angles(direction, up) -> tuple[float, float]:
+    """Inverse of :func:`light_direction`: (azimuth_deg, elevation_deg)."""
+    e1, e2, u = horizontal_basis(up)
+    d = np.asarray(direction, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    el = math.degrees(math.asin(float(np.clip(d @ u, -1.0, 1.0))))
+    az = math.degrees(math.atan2(float(d @ e2), float(d @ e1)))
+    return az, el
+
+
+def as_scene(source):
+    """The :class:`~pointviz.scene.Scene` shown by the viewer (a cloud gets default lights)."""
+    from ..rendering import as_scene as _as_scene
+
+    return _as_scene(source)
+
+
+def initial_settings(scene, **overrides) -> ViewerSettings:
+    """Settings that start from the scene's own first directional light and ground."""
+    from ..scene import DirectionalLight
+
+    kw = {"ground": None}
+    for light in scene.lights or ():
+        if isinstance(light, DirectionalLight):
+            az, el = light_angles(light.direction, scene.up)
+            kw.update(light_azimuth_deg=round(az, 3), light_elevation_deg=round(el, 3),
+                      light_intensity=float(light.intensity))
+            break
+    if scene.ground is None:
+        kw["ground"] = "none"
+    kw.update(overrides)
+    return ViewerSettings(**kw)
+
+
+def render_scene(scene, settings: ViewerSettings):
+    """The scene to ray trace: ``scene`` with the settings' ground and light (trees shared).
+
+    The settings describe a single directional light (its softness comes from the scene's first
+    directional light). Builds the scene's surfel trees on first use, so call it on the render
+    worker's thread, not the GUI thread.
+    """
+    from ..scene import DirectionalLight
+
+    for i in range(len(scene.objects)):  # build the trees once, on the shared objects
+        scene.surfel_scene(i)
+    out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
+    angle = 3.0
+    for light in scene.lights or ():
+        if isinstance(light, DirectionalLight):
+            angle = light.angle_deg
+            break
+    direction = light_direction(settings.light_azimuth_deg, settings.light_elevation_deg, scene.up)
+    out.lights = [DirectionalLight(direction=tuple(float(v) for v in direction),
+                                   intensity=float(settings.light_intensity), angle_deg=angle)]
+    return out
+
+
+def scene_clouds(scene) -> list:
+    """(cloud, material) pairs of the scene's point objects (callback geometries are skipped)."""
+    out = []
+    for obj in scene.objects:
+        cloud = getattr(obj.geometry, "cloud", obj.geometry)
+        if hasattr(cloud, "points"):
+            out.append((cloud, obj.material))
+    return out
+
+
+@dataclass
+class PreviewData:
+    """What the preview draws (all float32 except points).
+
+    Attributes
+    ----------
+    points : (m, 3) float64
+    normals : (m, 3) float32
+    colors : (m, 3) float32 in [0, 1]
+    radii : (m,) float32
+        Surfel radii, enlarged by ``sqrt(total / m)`` for a subset so the surface stays closed.
+    total : int
+        Points in the scene; ``m < total`` means a level-of-detail subset.
+    note : str
+        Status-bar text (subset, missing intensity).
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray
+    radii: np.ndarray
+    total: int
+    note: str = ""
+
+    @property
+    def is_subset(self) -> bool:
+        return len(self.points) < self.total
+
+
+def _colormap(values: np.ndarray) -> np.ndarray:
+    """Viridis-like RGB for values in [0, 1]; (n,) -> (n, 3) float32."""
+    x = np.clip(values, 0.0, 1.0) * (len(_VIRIDIS) - 1)
+    return np.stack([np.interp(x, np.arange(len(_VIRIDIS)), _VIRIDIS[:, c]) for c in range(3)],
+                    axis=1).astype(np.float32)
+
+
+def _normalise(values: np.ndarray) -> np.ndarray:
+    lo, hi = np.percentile(values, INTENSITY_PERCENTILES) if len(values) else (0.0, 1.0)
+    return (values - lo) / (hi - lo) if hi > lo else np.zeros_like(values)
+
+
+def preview_colors(cloud, material, index, mode: str, up) -> tuple[np.ndarray, str]:
+    """Colours of the selected points for a colour mode; (k, 3) float32 and a note."""
+    note = ""
+    if mode == "normal":
+        return (0.5 * (np.asarray(cloud.normals)[index] + 1.0)).astype(np.float32), note
+    if mode == "height":
+        h = np.asarray(cloud.points)[index] @ np.asarray(up, dtype=np.float64)
+        lo, hi = (float(h.min()), float(h.max())) if len(h) else (0.0, 1.0)
+        return _colormap((h - lo) / (hi - lo) if hi > lo else np.zeros_like(h)), note
+    base = np.asarray(material.color, dtype=np.float32)
+    if cloud.colors is not None and material.use_point_colors:
+        rgb = np.asarray(cloud.colors)[index] * (base / max(float(base.max()), 1e-6))
+    else:
+        rgb = np.broadcast_to(base, (len(index), 3))
+    rgb = np.clip(rgb, 0.0, 1.0).astype(np.float32)
+    if mode == "intensity":
+        intensity = getattr(cloud, "intensity", None)
+        if intensity is not None:
+            g = _normalise(np.asarray(intensity, dtype=np.float64)[index]).astype(np.float32)
+        else:
+            g = rgb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+            note = "no intensity: showing luminance"
+        return np.repeat(np.clip(g, 0, 1)[:, None], 3, axis=1).astype(np.float32), note
+    return rgb, note
+
+
+def preview_data(scene, settings: ViewerSettings) -> PreviewData:
+    """Points, normals, colours and radii the preview draws (a seeded subset if too many)."""
+    pairs = scene_clouds(scene)
+    if not pairs:
+        raise InputError("scene: nothing to preview (no point clouds)")
+    total = sum(len(c.points) for c, _ in pairs)
+    keep = min(1.0, settings.preview_max_points / total)
+    rng = np.random.default_rng(PREVIEW_SUBSET_SEED)
+    pts, nrm, col, rad, notes = [], [], [], [], []
+    for cloud, mat in pairs:
+        n = len(cloud.points)
+        if keep < 1.0:
+            index = np.sort(rng.choice(n, size=max(1, int(n * keep)), replace=False))
+        else:
+            index = np.arange(n)
+        c, note = preview_colors(cloud, mat, index, settings.color_mode, scene.up)
+        pts.append(np.asarray(cloud.points)[index])
+        nrm.append(np.asarray(cloud.normals, dtype=np.float32)[index])
+        col.append(c)
+        rad.append(np.asarray(cloud.radii, dtype=np.float32)[index] * np.float32(math.sqrt(n / len(index))))
+        if note:
+            notes.append(note)
+    data = PreviewData(np.concatenate(pts), np.concatenate(nrm), np.concatenate(col),
+                       np.concatenate(rad), total)
+    if data.is_subset:
+        notes.insert(0, f"preview: LoD subset of {len(data.points):,} / {total:,} points "
+                        "(Render traces all)")
+    else:
+        notes.insert(0, f"preview: {total:,} points")
+    data.note = "; ".join(dict.fromkeys(notes))
+    return data
+
+
+def point_size_px(radius: float, distance: float, height_px: int, fov_deg: float,
+                  scale: float = 1.0) -> float:
+    """Preview point size: the diameter in pixels of a disk of ``radius`` at ``distance``.
+
+    Clamped to [MIN_POINT_SIZE_PX, MAX_POINT_SIZE_PX].
+    """
+    focal = height_px / (2.0 * math.tan(math.radians(fov_deg) / 2.0))
+    px = 2.0 * radius * focal / max(distance, 1e-12) * scale
+    return float(min(MAX_POINT_SIZE_PX, max(MIN_POINT_SIZE_PX, px)))
+
+
+# ------------------------------------------------------------------------------------ cameras
+
+
+def camera_from_gl(view, projection, width: int, height: int, target_distance: float):
+    """The :class:`~pointviz.camera.Camera` of an OpenGL-style view and projection matrix.
+
+    Parameters
+    ----------
+    view : (4, 4) array_like
+        World -> camera, camera looking down -Z with +Y up (Open3D's ``get_view_matrix``,
+        VTK's view transform).
+    projection : (4, 4) array_like
+        Perspective projection; ``P[1, 1] = 1 / tan(vfov / 2)``.
+    width, height : int
+        Output image size. The vertical field of view is kept, so a different aspect shows
+        more or less horizontally.
+    target_distance : float
+        How far along the view direction the camera's target is put.
+    """
+    from ..camera import Camera
+
+    v = np.asarray(view, dtype=np.float64).reshape(4, 4)
+    p = np.asarray(projection, dtype=np.float64).reshape(4, 4)
+    inv = np.linalg.inv(v)
+    eye = inv[:3, 3]
+    forward = -inv[:3, 2]
+    up = inv[:3, 1]
+    if not p[1, 1] > 0:
+        raise InputError("projection: not a perspective projection (P[1,1] <= 0)")
+    fov = math.degrees(2.0 * math.atan(1.0 / p[1, 1]))
+    return Camera(eye, eye + forward * float(target_distance), up, fov, int(width), int(height))
+
+
+def output_size(settings: ViewerSettings, view_width: int, view_height: int) -> tuple[int, int]:
+    """Frame size: the settings' size, a missing side following the preview's aspect."""
+    w, h = int(settings.width), int(settings.height)
+    if w and h:
+        return w, h
+    if w:
+        return w, max(1, round(w * view_height / view_width))
+    if h:
+        return max(1, round(h * view_width / view_height)), h
+    return int(view_width), int(view_height)
+
+
+def camera_json(camera) -> str:
+    """The camera as the JSON text ``pointviz render --camera`` reads."""
+    import json
+
+    from ..camera import CAMERA_FORMAT, CAMERA_FORMAT_VERSION
+
+    return json.dumps({"format": CAMERA_FORMAT, "version": CAMERA_FORMAT_VERSION,
+                       **camera.to_dict()}, indent=2) + "\n"

@@ -1,0 +1,851 @@
+"""The Open3D viewer: a ``gui.Application`` window with a splat preview, the ray-traced frame and
+a side panel.
+
+Threads
+-------
+* :class:`O3DViewer` and every widget live on the **GUI thread** (the thread that calls
+  ``gui.Application.instance.run()``); all its methods run there unless stated.
+* The :class:`~pointviz.viewer.worker.RenderWorker` thread traces frames and owns no widget.
+  Its reports cross to the GUI thread through ``post_to_main_thread`` only (``_post``).
+* :meth:`O3DViewer.call` lets another thread (a script, a test) run a function on the GUI thread
+  and wait for its result.
+
+Model / view / controller: :class:`~pointviz.viewer.model.ViewerSettings` is the single source of
+truth; each handler replaces fields of it and calls :meth:`O3DViewer._apply_settings`, which
+pushes it into the widgets and the preview scene.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError, require
+from . import model
+from .worker import RenderWorker
+
+#: Side panel width, in em (font heights).
+PANEL_WIDTH_EM = 19
+#: Status bar height, in em.
+STATUS_HEIGHT_EM = 1.8
+#: Default window size, pixels (fits a 1600 x 1000 Xvfb screen with room to spare).
+DEFAULT_WINDOW_SIZE = (1580, 680)
+#: Relative change of the preview point size that triggers a material update (avoids a
+#: re-upload on every tick of a tiny zoom).
+POINT_SIZE_TOLERANCE = 0.05
+#: Open3D sun intensity (lux-like units of Filament) for a light of intensity 1.
+SUN_INTENSITY_PER_UNIT = 75000.0
+#: Open3D image-based (ambient) light intensity of the preview: dimmer than Open3D's default so
+#: that the sun's direction reads on the splats, like the ray tracer's sky ambient.
+PREVIEW_AMBIENT = 15000.0
+#: Preview background (sRGB), close to the ray tracer's sky at the horizon.
+PREVIEW_BACKGROUND = (0.82, 0.86, 0.92, 1.0)
+#: Automation: seconds to wait after the preview's first frame before rendering (the software
+#: rasteriser presents the first frames late), and after showing the frame before the grab.
+AUTOMATION_WARMUP_S = 0.6
+AUTOMATION_SETTLE_S = 0.5
+#: Automation: attempts to grab a non-blank screenshot (AUTOMATION_SETTLE_S apart).
+SCREENSHOT_ATTEMPTS = 10
+#: A grab whose pixel standard deviation is at most this is blank (nothing presented yet).
+BLANK_STD = 1.0
+#: Ground quad half size, in scene diagonals.
+GROUND_HALF_SIZE = 2.0
+
+
+@dataclass
+class Automation:
+    """What ``pointviz view --render --screenshot`` (and the tests) ask the window to do.
+
+    Attributes
+    ----------
+    render : bool
+        Press Render once the preview is up.
+    screenshot : str or None
+        Save a screenshot of the whole window there (PNG), then close.
+    frame : str or None
+        Save the ray-traced frame (``.npz`` with color/depth/normal/alpha and the camera JSON).
+    report : str or None
+        Write a JSON report: timings, widget rectangles in the screenshot, camera, settings.
+    overwrite : bool
+    close : bool
+        Close the window when done.
+    """
+
+    render: bool = False
+    screenshot: str | None = None
+    frame: str | None = None
+    report: str | None = None
+    overwrite: bool = False
+    close: bool = True
+    state: str = "wait"
+    t_state: float = 0.0
+    info: dict = field(default_factory=dict)
+
+
+def grab_window(window_rect) -> np.ndarray:
+    """Pixels of a screen rectangle of the X display, (h, w, 3) uint8.
+
+    Uses Pillow's XCB grab (``ImageGrab.grab(xdisplay=...)``): it reads what the X server shows,
+    i.e. the whole window as presented, panel and all.
+    """
+    from PIL import ImageGrab
+
+    x, y, w, h = window_rect
+    img = ImageGrab.grab(bbox=(x, y, x + w, y + h), xdisplay=os.environ.get("DISPLAY"))
+    return np.asarray(img.convert("RGB"))
+
+
+class O3DViewer:
+    """The viewer window (GUI thread).
+
+    Parameters
+    ----------
+    scene : Scene
+        What to show and trace.
+    settings : ViewerSettings
+    camera : Camera, optional
+        Initial view; default frames the scene.
+    title : str
+    automation : Automation, optional
+    t_start : float, optional
+        ``time.monotonic()`` when :func:`pointviz.view` was called (time-to-first-preview).
+    window_size : (int, int)
+    """
+
+    def __init__(self, scene, settings, camera=None, title="pointviz", automation=None,
+                 t_start=None, window_size=DEFAULT_WINDOW_SIZE):
+        o3d = require("open3d", "viewer")
+        self.o3d = o3d
+        self.gui = o3d.visualization.gui
+        self.rendering = o3d.visualization.rendering
+        self.app = self.gui.Application.instance
+        self.scene = scene
+        self.settings = settings.validate()
+        self.automation = automation
+        self.t_start = time.monotonic() if t_start is None else t_start
+        self.timings: dict = {}
+        self.frame = None  # last finished Frame
+        self.mesh_frame = None
+        self.frame_camera = None
+        self.show_frame = True
+        self.job = None  # the RenderJob being traced (None when idle)
+        self.render_started = 0.0
+        self.tick_times: list[float] = []  # ticks seen while a render runs (responsiveness)
+        self.closed = False
+        self.path = None
+        self.playing = None  # (t0 wall clock, path) while a path plays
+        self._point_size = None
+        self._last_view = None
+        self._first_tick = None
+        self.worker = RenderWorker(self._post_progress, self._post_done, self._post_error)
+
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in scene.bounds())
+        self.center = 0.5 * (lo + hi)
+        self.diagonal = float(np.linalg.norm(hi - lo))
+
+        w, h = window_size
+        self.window = self.app.create_window(title, w, h)
+        self._build_widgets()
+        self._load_preview()
+        self._setup_camera(camera)
+        self._apply_settings()
+        self.timings["window_built_s"] = time.monotonic() - self.t_start
+
+    # ================================================================== construction
+    def _build_widgets(self) -> None:
+        gui = self.gui
+        win = self.window
+        em = win.theme.font_size
+        self.em = em
+        self.preview = gui.SceneWidget()
+        self.preview.scene = self.rendering.Open3DScene(win.renderer)
+        self.preview.scene.set_background(list(PREVIEW_BACKGROUND))
+        self.preview.set_on_mouse(self._on_mouse)
+        # redraw the 3D scene only when it changes, not for every progress-bar update: with a
+        # software rasteriser a scene redraw costs tens of ms and competes with the tracer
+        self.preview.enable_scene_caching(True)
+        self.result = gui.ImageWidget(self.o3d.geometry.Image(np.full((8, 8, 3), 40, np.uint8)))
+        self.status = gui.Label("loading...")
+
+        sep = int(round(0.4 * em))
+        panel = gui.ScrollableVert(sep, gui.Margins(sep, sep, sep, sep))
+        self.panel = panel
+
+        # -- render controls
+        box = gui.CollapsableVert("Ray tracing", sep, gui.Margins(0, 0, 0, 0))
+        row = gui.Horiz(sep)
+        self.btn_render = self._button(row, "Render", self._on_render)
+        self.btn_cancel = self._button(row, "Cancel", self._on_cancel)
+        self.btn_cancel.enabled = False
+        box.add_child(row)
+        self.progress = gui.ProgressBar()
+        box.add_child(self.progress)
+        self.render_label = gui.Label("press Render (R)")
+        box.add_child(self.render_label)
+        self.chk_shadows = self._checkbox(box, "Shadows", "shadows")
+        self.num_reflections = self._number(box, "Reflections", "reflections", True, 0, 16)
+        self.num_spp = self._number(box, "Samples / pixel", "spp", True, 1, 4096)
+        self.num_lod = self._number(box, "LoD threshold (px)", "lod_pixels", False, 0, 64)
+        self.sl_az = self._slider(box, "Light azimuth", "light_azimuth_deg", -180, 180)
+        self.sl_el = self._slider(box, "Light elevation", "light_elevation_deg", -10, 90)
+        self.cmb_ground = self._combo(box, "Ground", "ground", ["scene", *model.GROUNDS])
+        self.num_width = self._number(box, "Width (0: view)", "width", True, 0, 8192)
+        self.num_height = self._number(box, "Height (0: view)", "height", True, 0, 8192)
+        self.cmb_display = self._combo(box, "Show frame", "display", list(model.DISPLAYS))
+        self.chk_show = gui.Checkbox("Frame visible (overlay)")
+        self.chk_show.checked = True
+        self.chk_show.set_on_checked(self._on_show_frame)
+        box.add_child(self.chk_show)
+        panel.add_child(box)
+
+        # -- preview controls
+        box = gui.CollapsableVert("Preview", sep, gui.Margins(0, 0, 0, 0))
+        self.cmb_color = self._combo(box, "Colour by", "color_mode", list(model.COLOR_MODES))
+        self.sl_scale = self._slider(box, "Point scale", "point_scale", 0.25, 4.0, integer=False)
+        self.num_maxpts = self._number(box, "LoD max points", "preview_max_points", True, 1000, 10**9)
+        panel.add_child(box)
+
+        # -- actions
+        box = gui.CollapsableVert("Output", sep, gui.Margins(0, 0, 0, 0))
+        self.btn_save = self._button(box, "Save image...", self._on_save_image)
+        self._button(box, "Copy camera", self._on_copy_camera)
+        row = gui.Horiz(sep)
+        self._button(row, "Add keyframe", self._on_add_keyframe)
+        self._button(row, "Save path...", self._on_save_path)
+        box.add_child(row)
+        self.btn_play = self._button(box, "Play path", self._on_play_path)
+        self.path_label = gui.Label("path: 0 keyframes")
+        box.add_child(self.path_label)
+        self.btn_compare = self._button(box, "Compare with mesh", self._on_compare)
+        if not _compare_available():
+            self.btn_compare.enabled = False
+            self.btn_compare.tooltip = "needs pointviz.compare (not installed)"
+        panel.add_child(box)
+
+        win.add_child(self.preview)
+        win.add_child(self.result)
+        win.add_child(panel)
+        win.add_child(self.status)
+        win.set_on_layout(self._on_layout)
+        win.set_on_tick_event(self._on_tick)
+        win.set_on_close(self._on_close)
+        win.set_on_key(self._on_key)
+
+    def _button(self, parent, text, handler):
+        b = self.gui.Button(text)
+        b.horizontal_padding_em = 0.5
+        b.vertical_padding_em = 0.1
+        b.set_on_clicked(handler)
+        parent.add_child(b)
+        return b
+
+    def _labelled(self, parent, text, widget):
+        grid = self.gui.VGrid(2, int(0.25 * self.em))
+        grid.add_child(self.gui.Label(text))
+        grid.add_child(widget)
+        parent.add_child(grid)
+        return widget
+
+    def _checkbox(self, parent, text, key):
+        cb = self.gui.Checkbox(text)
+        cb.set_on_checked(lambda v: self._set(**{key: bool(v)}))
+        parent.add_child(cb)
+        return cb
+
+    def _number(self, parent, text, key, integer, lo, hi):
+        ne = self.gui.NumberEdit(self.gui.NumberEdit.INT if integer else self.gui.NumberEdit.DOUBLE)
+        ne.set_limits(lo, hi)
+        if integer:
+            ne.set_on_value_changed(lambda v: self._set(**{key: int(v)}))
+        else:
+            ne.set_on_value_changed(lambda v: self._set(**{key: float(v)}))
+        return self._labelled(parent, text, ne)
+
+    def _slider(self, parent, text, key, lo, hi, integer=True):
+        sl = self.gui.Slider(self.gui.Slider.INT if integer else self.gui.Slider.DOUBLE)
+        sl.set_limits(lo, hi)
+        sl.set_on_value_changed(lambda v: self._set(**{key: float(v)}))
+        return self._labelled(parent, text, sl)
+
+    def _combo(self, parent, text, key, items):
+        cb = self.gui.Combobox()
+        for item in items:
+            cb.add_item(item)
+        cb.set_on_selection_changed(
+            lambda value, index: self._set(**{key: None if value == "scene" else value}))
+        return self._labelled(parent, text, cb)
+
+    # ================================================================== model -> view
+    def _set(self, **changes) -> None:
+        """Every handler ends here: replace settings fields, then push them everywhere."""
+        try:
+            self.settings = self.settings.updated(**changes)
+        except InputError as exc:
+            self._message("Invalid setting", str(exc))
+        self._apply_settings(preview_changed=bool(
+            {"color_mode", "preview_max_points"} & set(changes)))
+
+    def _apply_settings(self, preview_changed=False) -> None:
+        s = self.settings
+        self.chk_shadows.checked = s.shadows
+        self.num_reflections.int_value = s.reflections
+        self.num_spp.int_value = s.spp
+        self.num_lod.double_value = s.lod_pixels
+        self.sl_az.int_value = int(round(s.light_azimuth_deg))
+        self.sl_el.int_value = int(round(s.light_elevation_deg))
+        self.cmb_ground.selected_text = "scene" if s.ground is None else s.ground
+        self.num_width.int_value = s.width
+        self.num_height.int_value = s.height
+        self.cmb_display.selected_text = s.display
+        self.cmb_color.selected_text = s.color_mode
+        self.sl_scale.double_value = s.point_scale
+        self.num_maxpts.int_value = s.preview_max_points
+        if preview_changed:
+            self._load_preview()
+        self._apply_lighting()
+        self._apply_ground()
+        self._update_point_size(force=True)
+        self.window.set_needs_layout()
+
+    def _apply_lighting(self) -> None:
+        s = self.settings
+        d = model.light_direction(s.light_azimuth_deg, s.light_elevation_deg, self.scene.up)
+        sc = self.preview.scene
+        sc.set_lighting(sc.LightingProfile.NO_SHADOWS, (-d).astype(np.float32))
+        sc.scene.set_sun_light((-d).astype(np.float32), [1.0, 1.0, 1.0],
+                               SUN_INTENSITY_PER_UNIT * s.light_intensity)
+        sc.scene.enable_sun_light(True)
+        sc.scene.set_indirect_light_intensity(PREVIEW_AMBIENT)
+
+    def _apply_ground(self) -> None:
+        sc = self.preview.scene
+        if sc.has_geometry("ground"):
+            sc.remove_geometry("ground")
+        ground = self.settings.ground
+        if ground is None:
+            ground = "none" if self.scene.ground is None else (
+                "mirror" if self.scene.ground.mirror > 0.3 else "matte")
+        if ground == "none":
+            return
+        e1, e2, _ = model.horizontal_basis(self.scene.up)
+        p = np.asarray(self.scene.ground_point(), dtype=np.float64)
+        r = GROUND_HALF_SIZE * self.diagonal
+        verts = np.array([p - r * e1 - r * e2, p + r * e1 - r * e2, p + r * e1 + r * e2,
+                          p - r * e1 + r * e2])
+        mesh = self.o3d.geometry.TriangleMesh(self.o3d.utility.Vector3dVector(verts),
+                                              self.o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3],
+                                                                               [0, 2, 1], [0, 3, 2]]))
+        mesh.compute_vertex_normals()
+        mat = self.rendering.MaterialRecord()
+        mat.shader = "defaultLit"
+        mat.base_color = [0.62, 0.64, 0.68, 1.0] if ground == "matte" else [0.35, 0.38, 0.45, 1.0]
+        mat.base_roughness = 0.9 if ground == "matte" else 0.15
+        sc.add_geometry("ground", mesh, mat)
+
+    def _load_preview(self) -> None:
+        t0 = time.monotonic()
+        data = model.preview_data(self.scene, self.settings)
+        self.preview_info = data
+        pcd = self.o3d.geometry.PointCloud()
+        pcd.points = self.o3d.utility.Vector3dVector(data.points)
+        pcd.normals = self.o3d.utility.Vector3dVector(data.normals.astype(np.float64))
+        pcd.colors = self.o3d.utility.Vector3dVector(data.colors.astype(np.float64))
+        self.median_radius = float(np.median(data.radii))
+        sc = self.preview.scene
+        if sc.has_geometry("cloud"):
+            sc.remove_geometry("cloud")
+        sc.add_geometry("cloud", pcd, self._point_material(self._point_size or 3.0))
+        self.timings["preview_upload_s"] = time.monotonic() - t0
+        self._update_status()
+
+    def _point_material(self, size):
+        mat = self.rendering.MaterialRecord()
+        mat.shader = "defaultLit"
+        mat.point_size = float(size)
+        return mat
+
+    def _setup_camera(self, camera) -> None:
+        from ..camera import Camera
+
+        w, h = self._preview_size()
+        if camera is None:
+            camera = Camera.fit(self.scene, fov_deg=40.0, width=w, height=h)
+        self.apply_camera(camera)
+
+    def _preview_size(self) -> tuple[int, int]:
+        """The preview's size in pixels, from the layout rule (valid before the first layout)."""
+        r = self.window.content_rect
+        area_w = r.width - int(PANEL_WIDTH_EM * self.em)
+        area_h = r.height - int(STATUS_HEIGHT_EM * self.em)
+        if self.settings.display == "side":
+            area_w //= 2
+        return max(area_w, 1), max(area_h, 1)
+
+    def apply_camera(self, camera) -> None:
+        """Point the preview's camera like ``camera`` (eye, target, up), with a vertical field
+        of view wide enough to show the camera's whole image in the preview's aspect."""
+        w, h = self._preview_size()
+        tan_h = camera.tan_half * max(1.0, camera.aspect * h / w)
+        fov = math.degrees(2.0 * math.atan(tan_h))
+        bbox = self.o3d.geometry.AxisAlignedBoundingBox(self.center - self.diagonal,
+                                                        self.center + self.diagonal)
+        self.preview.setup_camera(float(fov), bbox, camera.target.astype(np.float32))
+        self.preview.look_at(camera.target.astype(np.float32), camera.eye.astype(np.float32),
+                             camera.true_up.astype(np.float32))
+        self._update_point_size(force=True)
+
+    def _update_point_size(self, force=False) -> None:
+        cam = self.preview.scene.camera
+        view = np.asarray(cam.get_view_matrix())
+        eye = np.linalg.inv(view)[:3, 3]
+        frame = self.preview.frame
+        size = model.point_size_px(self.median_radius, float(np.linalg.norm(eye - self.center)),
+                                   max(frame.height, 1), cam.get_field_of_view(),
+                                   self.settings.point_scale)
+        old = self._point_size
+        if force or old is None or abs(size - old) > POINT_SIZE_TOLERANCE * old:
+            self._point_size = size
+            if self.preview.scene.has_geometry("cloud"):
+                self.preview.scene.modify_geometry_material("cloud", self._point_material(size))
+            self._update_status()
+
+    def _update_status(self) -> None:
+        info = getattr(self, "preview_info", None)
+        parts = [info.note if info else ""]
+        if self._point_size:
+            parts.append(f"point size {self._point_size:.1f} px")
+        if "first_preview_s" in self.timings:
+            parts.append(f"first preview {self.timings['first_preview_s']:.2f} s")
+        if self.frame is not None:
+            st = self.frame.stats
+            parts.append(f"frame {self.frame.width}x{self.frame.height} in "
+                         f"{self.timings.get('last_render_s', st['seconds']):.2f} s "
+                         f"({st['rays_per_second'] / 1e6:.2f} Mrays/s)")
+        self.status.text = "  |  ".join(p for p in parts if p)
+
+    # ================================================================== layout and events
+    def _on_layout(self, ctx) -> None:
+        gui = self.gui
+        r = self.window.content_rect
+        em = self.em
+        panel_w = int(PANEL_WIDTH_EM * em)
+        status_h = int(STATUS_HEIGHT_EM * em)
+        area_w = r.width - panel_w
+        area_h = r.height - status_h
+        self.panel.frame = gui.Rect(r.x + area_w, r.y, panel_w, area_h)
+        self.status.frame = gui.Rect(r.x + int(0.5 * em), r.y + area_h, r.width - em, status_h)
+        if self.settings.display == "side":
+            half = area_w // 2
+            self.preview.frame = gui.Rect(r.x, r.y, half, area_h)
+            self.result.frame = gui.Rect(r.x + half, r.y, area_w - half, area_h)
+            self.preview.visible = True
+            self.result.visible = True
+        else:
+            self.preview.frame = gui.Rect(r.x, r.y, area_w, area_h)
+            self.result.frame = gui.Rect(r.x, r.y, area_w, area_h)
+            show = self.show_frame and self.frame is not None
+            self.result.visible = show
+            self.preview.visible = not show
+
+    def _on_tick(self) -> bool:
+        now = time.monotonic()
+        if self._first_tick is None:
+            self._first_tick = now
+            self.timings["first_preview_s"] = now - self.t_start
+            self._update_status()
+        if self.job is not None:
+            self.tick_times.append(now)
+        redraw = False
+        view = np.asarray(self.preview.scene.camera.get_view_matrix())
+        if self._last_view is None or not np.allclose(view, self._last_view):
+            self._last_view = view
+            self._update_point_size()
+            redraw = True
+        if self.playing is not None:
+            redraw |= self._advance_path(now)
+        if self.automation is not None:
+            self._automate(now)
+        return redraw
+
+    def _on_mouse(self, event):
+        return self.gui.Widget.EventCallbackResult.IGNORED
+
+    def _on_key(self, event):
+        if event.type == self.gui.KeyEvent.Type.DOWN and event.key == self.gui.KeyName.R:
+            self._on_render()
+            return True
+        return False
+
+    def _on_close(self) -> bool:
+        """Window closing (GUI thread): cancel the render and wait for the worker to end."""
+        t0 = time.monotonic()
+        self.closed = True
+        ended = self.worker.shutdown()
+        self.timings["close_join_s"] = time.monotonic() - t0
+        self.timings["worker_ended_on_close"] = ended
+        self._write_report()
+        return True
+
+    def _on_show_frame(self, checked) -> None:
+        self.show_frame = bool(checked)
+        self.window.set_needs_layout()
+
+    # ================================================================== rendering
+    def current_camera(self):
+        """The pointviz Camera of the preview's current view, at the output size."""
+        cam = self.preview.scene.camera
+        frame = self.preview.frame
+        w, h = model.output_size(self.settings, max(frame.width, 1), max(frame.height, 1))
+        view = np.asarray(cam.get_view_matrix())
+        eye = np.linalg.inv(view)[:3, 3]
+        forward = -np.linalg.inv(view)[:3, 2]
+        dist = max(float((self.center - eye) @ forward), 1e-3 * self.diagonal)
+        return model.camera_from_gl(view, np.asarray(cam.get_projection_matrix()), w, h, dist)
+
+    def _on_render(self, compare=False) -> None:
+        """The Render button (and the R key, and automation): trace the current view."""
+        camera = self.current_camera()
+        self.job = self.worker.submit(self.scene, self.settings, camera, compare=compare)
+        self.frame_camera = camera
+        self.render_started = time.monotonic()
+        self.tick_times = []
+        self.progress.value = 0.0
+        self.btn_cancel.enabled = True
+        self.render_label.text = ("reconstructing + rendering..." if compare else
+                                  f"rendering {camera.width}x{camera.height}...")
+
+    def _on_compare(self) -> None:
+        self._on_render(compare=True)
+
+    def _on_cancel(self) -> None:
+        self.worker.cancel()
+        self.render_label.text = "cancelling..."
+
+    # -- worker thread -> GUI thread (the only crossing)
+    def _post(self, fn) -> None:
+        if not self.closed:
+            self.app.post_to_main_thread(self.window, fn)
+
+    def _post_progress(self, job_id, done, total):
+        self._post(lambda: self._show_progress(job_id, done, total))
+
+    def _post_done(self, job_id, result):
+        self._post(lambda: self._show_result(job_id, result))
+
+    def _post_error(self, job_id, exc):
+        self._post(lambda: self._show_error(job_id, exc))
+
+    # -- GUI thread
+    def _current(self, job_id) -> bool:
+        return self.job is not None and self.job.job_id == job_id and not self.closed
+
+    def _show_progress(self, job_id, done, total) -> None:
+        if self._current(job_id):
+            self.progress.value = done / max(total, 1)
+
+    def _end_job(self) -> None:
+        if self.tick_times:
+            gaps = np.diff([self.render_started, *self.tick_times])
+            self.timings["ticks_during_render"] = len(self.tick_times)
+            self.timings["max_tick_gap_during_render_s"] = float(gaps.max())
+        self.job = None
+        self.btn_cancel.enabled = False
+
+    def _show_result(self, job_id, result) -> None:
+        if not self._current(job_id):
+            return
+        self._end_job()
+        self.frame = result.frame
+        self.mesh_frame = result.mesh_frame
+        self.timings["last_render_s"] = result.seconds
+        self.timings.setdefault("renders", []).append(
+            {"seconds": result.seconds, "core_seconds": result.frame.stats["seconds"],
+             "size": [result.frame.width, result.frame.height],
+             "spp": self.settings.spp})
+        self.progress.value = 1.0
+        img = result.frame.to_srgb8()
+        if result.mesh_frame is not None:
+            gap = np.full((img.shape[0], 4, 3), 255, np.uint8)
+            img = np.concatenate([img, gap, result.mesh_frame.to_srgb8()], axis=1)
+            self.render_label.text = f"points | {result.mesh_note}"
+        else:
+            self.render_label.text = f"done in {result.seconds:.2f} s"
+        self.result.update_image(self.o3d.geometry.Image(np.ascontiguousarray(img)))
+        self._update_status()
+        self.window.set_needs_layout()
+        if self.automation is not None and self.automation.state == "rendering":
+            self._set_auto_state("settle")
+
+    def _show_error(self, job_id, exc) -> None:
+        from ..errors import CancelledError
+
+        if not self._current(job_id):
+            return
+        self._end_job()
+        self.progress.value = 0.0
+        if isinstance(exc, CancelledError):
+            self.render_label.text = "cancelled"
+        else:
+            self.render_label.text = "render failed"
+            self._message("Render failed", f"{type(exc).__name__}: {exc}")
+        if self.automation is not None and self.automation.state == "rendering":
+            self.automation.info["error"] = f"{type(exc).__name__}: {exc}"
+            self._set_auto_state("settle")
+
+    # ================================================================== output actions
+    def _file_dialog(self, title, filters, on_done) -> None:
+        gui = self.gui
+        dlg = gui.FileDialog(gui.FileDialog.SAVE, title, self.window.theme)
+        for ext, desc in filters:
+            dlg.add_filter(ext, desc)
+
+        def done(path):
+            self.window.close_dialog()
+            try:
+                on_done(path)
+            except (OSError, InputError) as exc:
+                self._message(title, str(exc))
+
+        dlg.set_on_cancel(self.window.close_dialog)
+        dlg.set_on_done(done)
+        self.window.show_dialog(dlg)
+
+    def _on_save_image(self) -> None:
+        if self.frame is None:
+            self._message("Save image", "Render a frame first.")
+            return
+        frame = self.frame
+        self._file_dialog("Save image", [(".png", "PNG"), (".exr", "OpenEXR (linear)")],
+                          lambda p: self._status_note(f"saved {frame.save(p)}"))
+
+    def _on_copy_camera(self) -> None:
+        """Show the current camera as JSON for ``pointviz render --camera`` (select + copy, or
+        save it)."""
+        camera = self.frame_camera if self.frame is not None else self.current_camera()
+        text = model.camera_json(camera)
+        self.last_camera_json = text
+        gui = self.gui
+        dlg = gui.Dialog("Camera")
+        em = self.em
+        layout = gui.Vert(int(0.5 * em), gui.Margins(em, em, em, em))
+        layout.add_child(gui.Label("Camera for `pointviz render --camera CAM.json`:"))
+        edit = gui.TextEdit()
+        edit.text_value = text.replace("\n", " ")
+        layout.add_child(edit)
+        row = gui.Horiz(int(0.5 * em))
+        save = gui.Button("Save as...")
+
+        def save_as():
+            self.window.close_dialog()
+            self._file_dialog("Save camera", [(".json", "camera JSON")],
+                              lambda p: self._status_note(f"saved {camera.to_json(p)}"))
+
+        save.set_on_clicked(save_as)
+        close = gui.Button("Close")
+        close.set_on_clicked(self.window.close_dialog)
+        row.add_child(save)
+        row.add_child(close)
+        layout.add_child(row)
+        dlg.add_child(layout)
+        self.window.show_dialog(dlg)
+        print(text, end="", flush=True)
+
+    def _on_add_keyframe(self) -> None:
+        from ..path import CameraPath
+
+        camera = self.current_camera()
+        if self.path is None:
+            self.path = CameraPath(width=camera.width, height=camera.height)
+        try:
+            self.path.add(camera)
+        except InputError as exc:
+            self._message("Add keyframe", str(exc))
+        self.path_label.text = f"path: {len(self.path)} keyframes, {self.path.duration:.1f} s"
+
+    def _on_save_path(self) -> None:
+        if self.path is None or len(self.path) < 2:
+            self._message("Save path", "Add at least two keyframes first.")
+            return
+        path = self.path
+        self._file_dialog("Save camera path", [(".json", "camera path JSON")],
+                          lambda p: self._status_note(f"saved {path.save(p)}"))
+
+    def _on_play_path(self) -> None:
+        if self.playing is not None:
+            self.playing = None
+            self.btn_play.text = "Play path"
+            return
+        if self.path is None or len(self.path) < 2:
+            self._message("Play path", "Add at least two keyframes first.")
+            return
+        self.playing = (time.monotonic(), self.path)
+        self.btn_play.text = "Stop"
+
+    def _advance_path(self, now) -> bool:
+        t0, path = self.playing
+        t = path.start + (now - t0)
+        if t >= path.start + path.duration:
+            t = path.start + path.duration
+            self.playing = None
+            self.btn_play.text = "Play path"
+        self.apply_camera(path.camera_at(t))
+        return True
+
+    def _status_note(self, text) -> None:
+        self.render_label.text = text
+
+    def _message(self, title, text) -> None:
+        if self.automation is not None:  # no modal dialogs in automation: record instead
+            self.automation.info.setdefault("messages", []).append(f"{title}: {text}")
+            return
+        self.window.show_message_box(title, text)
+
+    # ================================================================== automation
+    def _set_auto_state(self, state) -> None:
+        self.automation.state = state
+        self.automation.t_state = time.monotonic()
+
+    def _automate(self, now) -> None:
+        """One step of the automation state machine (GUI thread, from the tick event)."""
+        a = self.automation
+        if a.state == "wait":
+            self._set_auto_state("warmup")
+        elif a.state == "warmup" and now - a.t_state >= AUTOMATION_WARMUP_S:
+            if a.render:
+                self._set_auto_state("rendering")
+                self._on_render()
+            else:
+                self._set_auto_state("settle")
+        elif a.state == "settle" and now - a.t_state >= AUTOMATION_SETTLE_S:
+            a.info["attempts"] = a.info.get("attempts", 0) + 1
+            shot = self.screenshot() if a.screenshot else None
+            if shot is not None and shot.std() <= BLANK_STD and a.info["attempts"] < SCREENSHOT_ATTEMPTS:
+                self._set_auto_state("settle")  # not presented yet: grab again a bit later
+                return
+            self._set_auto_state("done")
+            self._finish_automation(shot)
+
+    def widget_rects(self) -> dict:
+        """Preview, frame and panel rectangles relative to the window's content (pixels)."""
+        r = self.window.content_rect
+
+        def rel(f):
+            return [f.x - r.x, f.y - r.y, f.width, f.height]
+
+        return {"preview": rel(self.preview.frame), "result": rel(self.result.frame),
+                "panel": rel(self.panel.frame), "content": [0, 0, r.width, r.height]}
+
+    def screenshot(self) -> np.ndarray:
+        """The whole window's content as shown on screen, (h, w, 3) uint8 (any thread).
+
+        The first frames of a software-rendered window can reach the X server late; callers
+        retry while the grab is blank (see BLANK_STD).
+        """
+        os_frame = self.window.os_frame
+        r = self.window.content_rect
+        return grab_window((os_frame.x + r.x, os_frame.y + r.y, r.width, r.height))
+
+    def _finish_automation(self, shot) -> None:
+        from ..files import atomic_write_bytes
+        from ..images import encode_png
+
+        a = self.automation
+        try:
+            if shot is not None:
+                atomic_write_bytes(a.screenshot, encode_png(shot), a.overwrite)
+                a.info["screenshot"] = os.fspath(a.screenshot)
+                a.info["screenshot_size"] = [int(shot.shape[1]), int(shot.shape[0])]
+            if a.frame and self.frame is not None:
+                save_frame_npz(a.frame, self.frame, self.frame_camera, a.overwrite)
+        except Exception as exc:  # noqa: BLE001 - reported, then the window closes
+            a.info["error"] = f"{type(exc).__name__}: {exc}"
+        if a.close:
+            # not from inside this tick event: closing a window in its own callback crashes
+            self.app.post_to_main_thread(self.window, self.window.close)
+
+    def report(self) -> dict:
+        a = self.automation
+        return {"timings": self.timings, "rects": self.widget_rects(),
+                "settings": self.settings.to_dict(),
+                "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
+                "preview_points": int(len(self.preview_info.points)),
+                "total_points": int(self.preview_info.total),
+                "status": self.status.text, "render_label": self.render_label.text,
+                **({} if a is None else {"automation": a.info})}
+
+    def _write_report(self) -> None:
+        a = self.automation
+        if a is None or not a.report:
+            return
+        from ..files import atomic_write_text
+
+        atomic_write_text(a.report, json.dumps(self.report(), indent=2, default=str),
+                          overwrite=a.overwrite)
+
+    # ================================================================== scripting
+    def call(self, fn, timeout: float = 30.0):
+        """Run ``fn()`` on the GUI thread and return its result (call from another thread)."""
+        box: dict = {}
+        done = threading.Event()
+
+        def run():
+            try:
+                box["value"] = fn()
+            except BaseException as exc:  # noqa: BLE001 - re-raised on the caller's thread
+                box["error"] = exc
+            done.set()
+
+        self.app.post_to_main_thread(self.window, run)
+        if not done.wait(timeout):
+            raise TimeoutError(f"GUI thread did not run the call within {timeout} s")
+        if "error" in box:
+            raise box["error"]
+        return box.get("value")
+
+
+def save_frame_npz(path, frame, camera, overwrite=False) -> None:
+    """Frame buffers and camera JSON in one ``.npz`` (tests compare it with a direct render)."""
+    import io
+
+    from ..files import atomic_write_bytes
+
+    buf = io.BytesIO()
+    np.savez(buf, color=frame.color, depth=frame.depth, normal=frame.normal, alpha=frame.alpha,
+             camera=np.array(model.camera_json(camera)))
+    atomic_write_bytes(path, buf.getvalue(), overwrite)
+
+
+def _compare_available() -> bool:
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec("pointviz.compare") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def run(scene, settings, camera=None, title="pointviz", automation=None, t_start=None,
+        window_size=DEFAULT_WINDOW_SIZE, on_ready=None) -> O3DViewer:
+    """Open the window and run the GUI loop on this thread until it closes.
+
+    ``on_ready(viewer)`` is called once the window exists, before the loop starts (scripts and
+    tests start their driver thread there).
+    """
+    o3d = require("open3d", "viewer")
+    app = o3d.visualization.gui.Application.instance
+    app.initialize()
+    viewer = O3DViewer(scene, settings, camera, title, automation, t_start, window_size)
+    if on_ready is not None:
+        on_ready(viewer)
+    app.run()
+    viewer.worker.shutdown()
+    return viewer
+
+
+__all__ = ["Automation", "O3DViewer", "grab_window", "run", "save_frame_npz"]
