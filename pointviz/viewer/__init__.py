@@ -77,9 +77,16 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
         auto = None
         if automated or report is not None:
             auto = o3d_app.Automation(render=render, screenshot=screenshot, frame=frame,
-                                      report=report, overwrite=overwrite, close=automated)
-        return o3d_app.run(scene, settings, camera, title, auto, t_start,
-                           window_size or o3d_app.DEFAULT_WINDOW_SIZE, on_ready)
+                                      report=report, overwrite=overwrite,
+                                      close=screenshot is not None or frame is not None)
+        viewer = o3d_app.run(scene, settings, camera, title, auto, t_start,
+                             window_size or o3d_app.DEFAULT_WINDOW_SIZE, on_ready)
+        error = viewer.automation_error
+        if error:
+            from ..errors import PointvizError
+
+            raise PointvizError(f"viewer: {error}")
+        return viewer
     from . import pv_app
 
     return pv_app.run(scene, settings, camera, title, render=render, screenshot=screenshot,

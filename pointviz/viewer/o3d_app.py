@@ -769,6 +769,11 @@ class O3DViewer:
             # not from inside this tick event: closing a window in its own callback crashes
             self.app.post_to_main_thread(self.window, self.window.close)
 
+    @property
+    def automation_error(self) -> str | None:
+        """What went wrong in automation (render error, screenshot failure), else None."""
+        return None if self.automation is None else self.automation.info.get("error")
+
     def report(self) -> dict:
         a = self.automation
         return {"timings": self.timings, "rects": self.widget_rects(),

@@ -1,0 +1,49 @@
+"""``pointviz view INPUT``: the interactive viewer (splat preview, Render button, outputs).
+
+With ``--render --screenshot OUT.png`` the window opens, renders the view once, saves a
+screenshot of the whole window (preview and ray-traced frame) and exits with status 0: for
+scripts, tests and docs (run it under ``xvfb-run`` on a machine without a display).
+"""
+
+from __future__ import annotations
+
+from .common import add_input_options, add_render_options, make_scene_and_camera
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("view", help="open the interactive viewer", description=__doc__)
+    add_input_options(p)
+    p.add_argument("--backend", choices=["open3d", "pyvista"], default="open3d",
+                   help="preview toolkit (default open3d)")
+    p.add_argument("--render", action="store_true", help="press Render once the preview is up")
+    p.add_argument("--screenshot", metavar="OUT.png",
+                   help="save a screenshot of the whole window, then exit")
+    p.add_argument("--frame", metavar="OUT.npz",
+                   help="also save the ray-traced frame's buffers and camera (.npz)")
+    p.add_argument("--report", metavar="OUT.json", help="write timings and layout (JSON) on exit")
+    p.add_argument("--color-by", choices=["rgb", "normal", "height", "intensity"], default="rgb",
+                   help="preview colouring")
+    p.add_argument("--preview-points", type=int, default=None, metavar="N",
+                   help="most points the preview draws (a subset above; the tracer uses all)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_render_options(p)
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from ..viewer import view
+    from ..viewer.model import DEFAULT_PREVIEW_MAX_POINTS
+
+    scene, camera = make_scene_and_camera(args)
+    overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
+                 "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
+                 "color_mode": args.color_by, "ground": None,  # the scene already has --ground
+                 "width": args.width or 0, "height": args.height or 0,
+                 "preview_max_points": args.preview_points or DEFAULT_PREVIEW_MAX_POINTS}
+    given_camera = camera if (args.camera or args.input == "demo") else None
+    view(scene, args.backend, camera=given_camera, render=args.render,
+                  screenshot=args.screenshot, frame=args.frame, report=args.report,
+                  overwrite=args.overwrite, **overrides)
+    if args.screenshot:
+        print(f"{args.screenshot}: screenshot of the viewer")
+    return 0
