@@ -32,6 +32,7 @@ class Settings:
     alpha_max_points: int = 300_000    # alpha shapes need a Delaunay tetrahedralisation
     bpa_max_points: int = 600_000
     seed: int = 0
+    up: tuple | None = None            # "up" of the scene; compare() sets the cloud's hint
     extra: dict = field(default_factory=dict)
 
     @classmethod
@@ -93,13 +94,15 @@ def _subsample(cloud, n, seed):
     return cloud.subset(idx)
 
 
-def render_geometry(geometry, camera, settings: Settings, lod: float = 0.0, spp=None):
+def render_geometry(geometry, camera, settings: Settings, lod: float = 0.0, spp=None, up=None):
     """One frame of one geometry with the comparison's fixed scene: no ground (so alpha and
-    depth are the object's), sky, default lights, self-shadows."""
+    depth are the object's), sky, default lights, self-shadows. ``up`` (the cloud's hint) must
+    be passed for every backend alike: a mesh has no hint, and the sky and the default light
+    follow it."""
     from ..rendering import render
     from ..scene import Scene
 
-    scene = Scene([geometry], ground="none")
+    scene = Scene([geometry], ground="none", up=up if up is not None else settings.up)
     return render(scene, camera, spp=spp or settings.spp, lod_pixels=lod, reflections=0,
                   seed=settings.seed, shadows=True)
 
@@ -237,6 +240,10 @@ def compare(input, reference=None, camera=None, out_dir="compare_out", methods=N
     lo, hi = cloud.bounds
     diagonal = float(np.linalg.norm(hi - lo))
     log(f"compare {name}: {len(cloud)} points, {camera.width}x{camera.height}, spp {settings.spp}")
+    if settings.up is None and getattr(cloud, "up", None) is not None:
+        from dataclasses import replace
+
+        settings = replace(settings, up=tuple(float(x) for x in cloud.up))
     shared_preprocess(cloud)  # timed before anything (the reference) computes normals/radii
     t0 = time.perf_counter()
     if ref_mesh is not None:
