@@ -123,7 +123,9 @@ class PVViewer:
 
     def viewport_size(self) -> tuple[int, int]:
         """Pixels of one of the two viewports."""
-        w, h = self.plotter.window_size
+        if not self.closed:
+            self._size = tuple(self.plotter.window_size)
+        w, h = self._size
         return max(1, w // 2), max(1, h)
 
     def current_camera(self):
@@ -221,7 +223,9 @@ class PVViewer:
         return np.asarray(self.plotter.screenshot(return_img=True))[..., :3]
 
     def widget_rects(self) -> dict:
-        w, h = self.plotter.window_size
+        """Preview and frame viewports in the screenshot, [x, y, w, h] pixels from the top-left."""
+        self.viewport_size()
+        w, h = self._size
         return {"preview": [0, 0, w // 2, h], "result": [w // 2, 0, w - w // 2, h],
                 "content": [0, 0, w, h]}
 
@@ -233,6 +237,7 @@ class PVViewer:
                 "total_points": int(self.preview_info.total)}
 
     def close(self) -> None:
+        self.viewport_size()
         self.closed = True
         self.timings["worker_ended_on_close"] = self.worker.shutdown()
         self.plotter.close()

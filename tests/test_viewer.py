@@ -1,0 +1,259 @@
+"""The viewer: settings model and render worker (no display needed), then both GUI backends run
+in a subprocess under the X display (``xvfb-run -a python -m pytest tests/test_viewer.py``).
+
+Oracle for the ray-traced panel: ``pointviz.render`` called directly with the camera and settings
+the viewer reports; the frame must be identical (same seed), and the screenshot's frame region
+must show that frame (loose tolerance: scaling and the widget's own filtering).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+
+import numpy as np
+import pytest
+
+from pointviz import Camera, render
+from pointviz.errors import CancelledError, InputError
+from pointviz.shapes import sphere
+from pointviz.viewer import model
+from pointviz.viewer.worker import RenderWorker
+
+#: Mean absolute difference (0..255) allowed between the screenshot's frame region and the
+#: frame itself (widget scaling/filtering; a wrong or missing image differs by > 40).
+SCREENSHOT_TOLERANCE = 12.0
+#: A panel is "not blank" when its pixel standard deviation exceeds this.
+NOT_BLANK_STD = 8.0
+#: Subprocess time limit, seconds (a GUI start plus a small render takes ~5 s here).
+GUI_TIMEOUT_S = 240
+#: Worker must end this soon after Cancel or close, seconds (tiles are small).
+STOP_TIMEOUT_S = 10.0
+
+CLOUD_SNIPPET = "from pointviz.shapes import sphere\ncloud = sphere(6000, color=(0.8, 0.35, 0.2))\n"
+
+
+def small_cloud():
+    return sphere(6000, color=(0.8, 0.35, 0.2))
+
+
+# ------------------------------------------------------------------------------ model, worker
+
+
+def test_settings_reject_bad_fields_by_name():
+    with pytest.raises(InputError, match="color_mode"):
+        model.ViewerSettings(color_mode="rainbow")
+    with pytest.raises(InputError, match="spp"):
+        model.ViewerSettings().updated(spp=0)
+    with pytest.raises(InputError, match="ground"):
+        model.ViewerSettings(ground="lava")
+
+
+def test_light_angles_roundtrip(rng):
+    for up in ([0, 1, 0], [0, 0, 1], rng.normal(size=3)):
+        for _ in range(5):
+            az, el = rng.uniform(-179, 179), rng.uniform(-80, 80)
+            d = model.light_direction(az, el, up)
+            assert np.isclose(np.linalg.norm(d), 1.0)
+            az2, el2 = model.light_angles(d, up)
+            assert np.allclose([az, el], [az2, el2], atol=1e-9)
+    # elevation 90 is straight up
+    assert np.allclose(model.light_direction(0, 90, [0, 0, 1]), [0, 0, 1])
+
+
+def test_camera_from_gl_recovers_camera():
+    cam = Camera.look_at((1.0, 2.0, 5.0), (0.2, 0.1, -0.3), up=(0, 1, 0), fov_deg=35,
+                         width=320, height=200)
+    gl_view = np.diag([1.0, -1.0, -1.0, 1.0]) @ cam.extrinsic_matrix()  # +Y up, looking down -Z
+    t = 1.0 / cam.tan_half
+    proj = np.array([[t / cam.aspect, 0, 0, 0], [0, t, 0, 0], [0, 0, -1, -0.2], [0, 0, -1, 0]])
+    out = model.camera_from_gl(gl_view, proj, 320, 200, cam.distance)
+    # same view (up comes back as the true up, so compare the rays and the target)
+    np.testing.assert_allclose(out.rays(dtype=np.float64), cam.rays(dtype=np.float64), atol=1e-9)
+    np.testing.assert_allclose(out.target, cam.target, atol=1e-9)
+
+
+def test_preview_subset_is_bounded_and_stated():
+    scene = model.as_scene(small_cloud())
+    full = model.preview_data(scene, model.ViewerSettings())
+    assert not full.is_subset and len(full.points) == 6000
+    sub = model.preview_data(scene, model.ViewerSettings(preview_max_points=1500))
+    assert sub.is_subset and len(sub.points) == 1500 and "subset" in sub.note
+    # radii grow so that 4x fewer disks still cover the surface: area ratio = 4
+    assert np.isclose(np.median(sub.radii) ** 2 / np.median(full.radii) ** 2, 4.0, rtol=0.05)
+    for mode in model.COLOR_MODES:
+        d = model.preview_data(scene, model.ViewerSettings(color_mode=mode))
+        assert d.colors.shape == (6000, 3) and d.colors.min() >= 0 and d.colors.max() <= 1
+
+
+def _run_worker(scene, settings, camera, cancel_after_first=False):
+    done = threading.Event()
+    box = {"progress": 0}
+
+    def progress(job_id, d, t):
+        box["progress"] += 1
+        if cancel_after_first:
+            worker.cancel()
+
+    worker = RenderWorker(progress, lambda j, r: (box.update(result=r), done.set()),
+                          lambda j, e: (box.update(error=e), done.set()))
+    worker.submit(scene, settings, camera)
+    assert done.wait(120)
+    assert worker.shutdown(STOP_TIMEOUT_S)
+    return box
+
+
+def test_worker_frame_equals_direct_render():
+    scene = model.as_scene(small_cloud())
+    settings = model.ViewerSettings(spp=2, ground="mirror", light_azimuth_deg=30)
+    camera = Camera.fit(small_cloud(), width=96, height=72)
+    box = _run_worker(scene, settings, camera)
+    assert "error" not in box
+    direct = render(model.render_scene(scene, settings), camera, **settings.render_kwargs())
+    np.testing.assert_array_equal(box["result"].frame.color, direct.color)
+    assert box["progress"] >= 1
+
+
+def test_worker_cancel_reports_cancelled_and_ends():
+    scene = model.as_scene(small_cloud())
+    settings = model.ViewerSettings(spp=512)
+    camera = Camera.fit(small_cloud(), width=320, height=240)
+    box = _run_worker(scene, settings, camera, cancel_after_first=True)
+    assert isinstance(box.get("error"), CancelledError)
+
+
+# ------------------------------------------------------------------------------ GUI backends
+
+needs_display = pytest.mark.skipif(
+    not os.environ.get("DISPLAY"),
+    reason="no X display: run the GUI tests under xvfb-run -a (Debian package xvfb)")
+
+
+def _python(script: str, cwd) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], cwd=cwd, env=env,
+                         capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
+    assert out.returncode == 0, f"viewer failed ({out.returncode}):\n{out.stderr[-3000:]}"
+    return out
+
+
+def _load_png(path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def _check_screenshot_and_frame(tmp_path, shot, rects):
+    """Preview and frame panels are not blank, the frame equals a direct render, and the
+    screenshot's frame panel shows it."""
+    data = np.load(tmp_path / "frame.npz")
+    camera = Camera.from_dict({k: v for k, v in json.loads(str(data["camera"])).items()
+                               if k not in ("format", "version")})
+    report = json.loads((tmp_path / "report.json").read_text())
+    settings = model.ViewerSettings(**report["settings"])
+    scene = model.as_scene(small_cloud())
+    direct = render(model.render_scene(scene, settings), camera, **settings.render_kwargs())
+    np.testing.assert_array_equal(data["color"], direct.color)
+
+    x, y, w, h = rects["preview"]
+    assert shot[y:y + h, x:x + w].std() > NOT_BLANK_STD, "preview panel is blank"
+    x, y, w, h = rects["result"]
+    panel = shot[y:y + h, x:x + w].astype(np.float64)
+    assert panel.std() > NOT_BLANK_STD, "ray-traced panel is blank"
+    expected = direct.to_srgb8().astype(np.float64)
+    # the widget shows the frame scaled to fit, centred: crop the panel to the frame's aspect
+    fh, fw = expected.shape[:2]
+    scale = min(w / fw, h / fh)
+    sw, sh = int(round(fw * scale)), int(round(fh * scale))
+    ox, oy = (w - sw) // 2, (h - sh) // 2
+    shown = panel[oy:oy + sh, ox:ox + sw]
+    rows = np.minimum((np.arange(sh) / scale).astype(int), fh - 1)
+    cols = np.minimum((np.arange(sw) / scale).astype(int), fw - 1)
+    resized = expected[rows][:, cols]
+    diff = np.abs(shown - resized).mean()
+    assert diff < SCREENSHOT_TOLERANCE, f"frame panel differs from the frame: {diff:.1f}/255"
+    # and it is not just any image: against a flipped frame the difference is large
+    assert np.abs(shown - resized[::-1]).mean() > diff + 5
+
+
+@pytest.mark.gui
+@needs_display
+@pytest.mark.parametrize("backend", ["open3d", "pyvista"])
+def test_view_render_screenshot_matches_direct_render(tmp_path, backend):
+    _python(f"""
+        {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import pointviz
+        pointviz.view(cloud, backend={backend!r}, render=True, screenshot="shot.png",
+                      frame="frame.npz", report="report.json", spp=2)
+        """, tmp_path)
+    shot = _load_png(tmp_path / "shot.png")
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["timings"]["worker_ended_on_close"] is True
+    _check_screenshot_and_frame(tmp_path, shot, report["rects"])
+
+
+@pytest.mark.gui
+@needs_display
+def test_view_cli_exits_zero_with_screenshot(tmp_path):
+    import open3d as o3d  # the CLI reads a file: write the cloud as PLY
+
+    ply = tmp_path / "sphere.ply"
+    assert o3d.io.write_point_cloud(str(ply), small_cloud().to_open3d())
+    out = subprocess.run([sys.executable, "-m", "pointviz.cli", "view", str(ply), "--render",
+                          "--spp", "1", "--screenshot", str(tmp_path / "cli.png")],
+                         capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert _load_png(tmp_path / "cli.png").std() > NOT_BLANK_STD
+
+
+@pytest.mark.gui
+@needs_display
+def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
+    """A deliberately slow render (spp 512): GUI-thread calls keep completing while it runs;
+    Cancel ends the worker; closing the window mid-render ends it too."""
+    out = _python(f"""
+        {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import json, threading, time
+        import pointviz
+        res = {{}}
+
+        def drive(v):
+            time.sleep(1.0)
+            v.call(v._on_render)                      # the Render button's handler
+            lat = []
+            t_end = time.monotonic() + 1.5
+            while time.monotonic() < t_end:
+                t = time.monotonic(); v.call(lambda: None); lat.append(time.monotonic() - t)
+                time.sleep(0.05)
+            res["running_during"] = v.worker.running
+            res["calls"] = len(lat)
+            res["max_latency_s"] = max(lat)
+            t = time.monotonic(); v.call(v._on_cancel)  # the Cancel button's handler
+            th = v.worker.thread; th.join(10)
+            res["cancel_join_s"] = time.monotonic() - t
+            res["ended_after_cancel"] = not th.is_alive()
+            time.sleep(0.3)
+            res["label_after_cancel"] = v.call(lambda: v.render_label.text)
+            v.call(v._on_render)
+            time.sleep(0.5)
+            res["thread2"] = v.worker.thread
+            v.call(v.window.close)                    # close mid-render
+
+        v = pointviz.view(cloud, spp=512, width=640, height=480,
+                          on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
+        th = res.pop("thread2")
+        res["ended_after_close"] = not th.is_alive()
+        res["ticks"] = v.timings.get("ticks_during_render")
+        print("RESULT" + json.dumps(res))
+        """, tmp_path)
+    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
+    res = json.loads(line[len("RESULT"):])
+    assert res["running_during"], "the slow render finished too early to test responsiveness"
+    assert res["calls"] >= 5  # the GUI thread answered throughout
+    assert res["ended_after_cancel"] and res["cancel_join_s"] < STOP_TIMEOUT_S
+    assert res["label_after_cancel"] == "cancelled"
+    assert res["ended_after_close"]
