@@ -34,7 +34,7 @@ _LAZY = {
     "AreaLight": "scene",
     "render": "rendering",
     "Frame": "rendering",
-    "compare": "compare",
+    "compare": "comparison",
     "view": "viewer",
 }
 

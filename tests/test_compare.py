@@ -15,10 +15,10 @@ pytest.importorskip("embreex")
 pytest.importorskip("flip_evaluator")
 
 from pointviz import Camera, InputError, render, shapes  # noqa: E402
-from pointviz.compare import analytic, metrics  # noqa: E402
-from pointviz.compare.mesh import MeshGeometry  # noqa: E402
-from pointviz.compare.run import Settings, render_geometry  # noqa: E402
-from pointviz.compare.schema import SCHEMA, builtin_errors, validate  # noqa: E402
+from pointviz.comparison import analytic, metrics  # noqa: E402
+from pointviz.comparison.mesh import MeshGeometry  # noqa: E402
+from pointviz.comparison.run import Settings, render_geometry  # noqa: E402
+from pointviz.comparison.schema import SCHEMA, builtin_errors, validate  # noqa: E402
 from pointviz.scene import Scene  # noqa: E402
 from pointviz.surfels import SurfelScene  # noqa: E402
 
@@ -119,7 +119,7 @@ def test_flip_is_zero_for_identical_and_grows_with_error(rng):
 
 
 def test_pareto_front():
-    from pointviz.compare.report import pareto
+    from pointviz.comparison.report import pareto
 
     pts = [(1, 5), (2, 3), (3, 4), (4, 1), (0.5, 9)]
     assert pareto(pts) == [4, 0, 1, 3]
@@ -137,7 +137,7 @@ def test_builtin_validator_catches_violations():
 
 
 def test_identical_settings_give_identical_metrics(tmp_path):
-    from pointviz.compare import compare
+    from pointviz.comparison import compare
 
     def run(d):
         doc = compare("sphere", out_dir=tmp_path / d, methods=["surfels-smooth", "poisson"],
@@ -148,7 +148,7 @@ def test_identical_settings_give_identical_metrics(tmp_path):
 
 
 def test_unknown_method_is_an_input_error(tmp_path):
-    from pointviz.compare import compare
+    from pointviz.comparison import compare
 
     with pytest.raises(InputError, match="methods"):
         compare("sphere", out_dir=tmp_path, methods=["nerf"], quick=True)
@@ -225,7 +225,7 @@ def test_cli_compare_quick(tmp_path, capsys):
 @pytest.mark.data
 @pytest.mark.slow
 def test_armadillo_mesh_is_its_own_reference(shared_data, tmp_path):
-    from pointviz.compare import compare
+    from pointviz.comparison import compare
 
     s = Settings.quick()
     doc = compare(shared_data / "stanford_armadillo" / "Armadillo.ply", out_dir=tmp_path,

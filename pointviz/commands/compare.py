@@ -26,8 +26,8 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..compare import compare
-    from ..compare.run import Settings
+    from ..comparison import compare
+    from ..comparison.run import Settings
     from ..errors import InputError
 
     settings = Settings.quick() if args.quick else Settings.full()

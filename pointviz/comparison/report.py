@@ -1,5 +1,5 @@
 """The comparison report: PNGs (frames, FLIP maps, side-by-side, charts), ``metrics.json``
-(validated against :data:`pointviz.compare.schema.SCHEMA`) and an offline ``index.html`` with
+(validated against :data:`pointviz.comparison.schema.SCHEMA`) and an offline ``index.html`` with
 relative links only."""
 
 from __future__ import annotations

@@ -3,7 +3,8 @@ the one shading code (surfels natively, meshes through :class:`MeshGeometry` and
 against a reference frame, and charted speed against accuracy.
 
 ``pointviz.compare(input, ...)`` runs everything and writes the report; ``pointviz compare`` is
-the command line.
+the command line. (The package is not called ``compare``: importing a submodule would then
+replace the ``pointviz.compare`` function with the package.)
 """
 
 from __future__ import annotations
@@ -13,14 +14,3 @@ from .run import Settings, compare
 
 __all__ = ["MeshGeometry", "Settings", "compare"]
 
-
-class _CallablePackage(__import__("types").ModuleType):
-    """Importing a submodule (``pointviz.compare.mesh``) binds ``pointviz.compare`` to this
-    package, shadowing the lazily exported function of the same name; making the package
-    callable keeps ``pointviz.compare(...)`` working either way."""
-
-    def __call__(self, *args, **kwargs):
-        return compare(*args, **kwargs)
-
-
-__import__("sys").modules[__name__].__class__ = _CallablePackage

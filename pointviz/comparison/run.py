@@ -209,7 +209,7 @@ def compare(input, reference=None, camera=None, out_dir="compare_out", methods=N
     quick : bool
         Small sizes (tests).
     stability : bool
-        Also run the stability sweeps (:mod:`pointviz.compare.stability`).
+        Also run the stability sweeps (:mod:`pointviz.comparison.stability`).
 
     Returns
     -------
