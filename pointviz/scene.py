@@ -214,12 +214,18 @@ class Scene:
     sky : (3,) float or dict, optional
         One colour for the whole sky, or ``{"zenith": rgb, "horizon": rgb, "below": rgb}``;
         default a soft blue-grey gradient.
+    two_sided : bool
+        Show surfels from both sides: the SurfelScenes built here skip the paper's normal-cone
+        culling (``cull=False``), which hides open scans (terrain, one-sided scans) seen from
+        behind; culling saves 0-10% of a frame (benchmarks/README.md). Set False for closed
+        models, or pass ``cull=`` explicitly.
     **scene_options
         Passed to the SurfelScene built for each PointCloud (e.g. ``interpolation``).
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
-                 up=None, ambient: float = 0.25, sky=None, **scene_options):
+                 up=None, ambient: float = 0.25, sky=None, two_sided: bool = True,
+                 **scene_options):
         from .surfels import SurfelScene
 
         if not isinstance(clouds, (list, tuple)):
@@ -236,6 +242,8 @@ class Scene:
             first = clouds[0].cloud if isinstance(clouds[0], SurfelScene) else clouds[0]
             up = getattr(first, "up", None)
         self.up = _unit(_Y_UP if up is None else up, "up")
+        if two_sided:
+            scene_options.setdefault("cull", False)
         self._scene_options = scene_options
         self.objects: list[SceneObject] = []
         for c, m in zip(clouds, materials):

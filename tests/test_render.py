@@ -271,3 +271,19 @@ def test_silhouette_coverage_matches_analytic_sphere(ball):
     err = np.abs(frame.alpha - cover)
     assert err[edge].mean() < 0.08
     assert err[~edge].max() < 0.1
+
+
+def test_open_surface_seen_from_behind_is_visible_by_default():
+    """A one-sided scan (normals toward the scanner) seen from the back: the default two-sided
+    scene shows it; the paper's culling (two_sided=False) hides it."""
+    sheet = shapes.plane(20_000, size=2.0, center=(0.0, 1.0, 0.0))  # normals +y
+    cam = Camera.look_at((0.0, -2.0, 0.3), (0.0, 1.0, 0.0), width=48, height=48)  # from below
+    seen = pointviz.render(Scene(sheet, ground="none"), cam, spp=1)
+    hidden = pointviz.render(Scene(sheet, ground="none", two_sided=False), cam, spp=1)
+    rays = cam.rays(dtype=np.float64)
+    t = (1.0 - rays[:, 1]) / rays[:, 4]
+    p = rays[:, :3] + rays[:, 3:] * t[:, None]
+    inside = ((np.abs(p[:, 0]) < 1.0) & (np.abs(p[:, 2]) < 1.0)).reshape(48, 48)
+    assert inside.mean() > 0.5
+    assert np.mean((seen.alpha > 0) == inside) > 0.98
+    assert hidden.alpha.max() == 0
