@@ -19,6 +19,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.add_argument("--spp", type=int, default=4)
     parser.add_argument("--detail", type=float, default=1.0, help="surfel density multiplier")
+    parser.add_argument("--no-compare", action="store_true",
+                        help="skip the comparison report (surfels vs reconstructed meshes)")
     args = parser.parse_args(argv)
 
     from .commands.common import ProgressBar
@@ -47,16 +49,28 @@ def main(argv=None) -> int:
         "rays": frame.stats["primary_rays"] + frame.stats["shadow_rays"] + frame.stats["reflection_rays"],
         "mrays_per_second": round(frame.stats["rays_per_second"] / 1e6, 2),
     }
+    compare_link = ""
+    if not args.no_compare:
+        from .comparison import compare
+
+        doc = compare("demo", out_dir=out / "compare", quick=True, overwrite=True,
+                      log=lambda *a, **k: None)
+        best = min(doc["entries"], key=lambda e: e["metrics"]["flip"])
+        facts["compare_best"] = f"{best['label']}: FLIP {best['metrics']['flip']:.4f}"
+        compare_link = ('<p>Quality check: <a href="compare/index.html">surfels against meshes '
+                        'reconstructed from the same points</a> (speed against accuracy).</p>')
     rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
                    for k, v in facts.items())
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
 <title>pointviz demo</title><style>body{{font-family:sans-serif;margin:2em;max-width:900px}}
 img{{max-width:100%}} th{{text-align:left;padding-right:1em}}</style></head><body>
 <h1>pointviz demo</h1><p>Surfels ray traced directly (no meshing): shadows and a mirror floor.</p>
-<img src="{png.name}" alt="ray-traced demo scene"><table>{rows}</table></body></html>"""
+<img src="{png.name}" alt="ray-traced demo scene"><table>{rows}</table>{compare_link}</body></html>"""
     atomic_write_bytes(out / "index.html", page.encode(), overwrite=True)
     atomic_write_bytes(out / "demo.json", json.dumps(facts, indent=2).encode(), overwrite=True)
     print(f"wrote {png} and {out / 'index.html'}: {n} surfels, render {facts['render_seconds']} s")
+    if compare_link:
+        print(f"wrote {out / 'compare' / 'index.html'}: best {facts['compare_best']}")
     return 0
 
 

@@ -22,6 +22,8 @@ def add_parser(sub) -> None:
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--height", type=int, default=None)
     p.add_argument("--spp", type=int, default=None)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the report in DIR if there is one")
     p.set_defaults(run=run)
 
 
@@ -30,6 +32,11 @@ def run(args) -> int:
     from ..comparison.run import Settings
     from ..errors import InputError
 
+    from pathlib import Path
+
+    existing = Path(args.output) / "index.html"
+    if existing.exists() and not args.overwrite:
+        raise FileExistsError(f"{existing}: a report is already there; pass --overwrite to replace it")
     settings = Settings.quick() if args.quick else Settings.full()
     for key in ("width", "height", "spp", "max_points"):
         value = getattr(args, key)
@@ -39,6 +46,7 @@ def run(args) -> int:
             setattr(settings, key, value)
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
     doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=args.output,
-                  methods=methods, quick=args.quick, stability=args.stability, settings=settings)
+                  methods=methods, quick=args.quick, stability=args.stability, settings=settings,
+                  overwrite=args.overwrite)
     print(f"wrote {doc['report']} ({len(doc['entries'])} method settings)")
     return 0
