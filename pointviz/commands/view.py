@@ -7,7 +7,17 @@ scripts, tests and docs (run it under ``xvfb-run`` on a machine without a displa
 
 from __future__ import annotations
 
+import os
+import sys
+
 from .common import add_input_options, add_render_options, make_scene_and_camera
+
+
+#: Leave the process without Python's teardown once the Open3D window has closed and every
+#: output is written: Open3D 0.20's GUI segfaults or hangs now and then while its static
+#: renderer objects are destroyed at interpreter exit (about 1 run in 6 under Xvfb + lavapipe),
+#: which would turn a successful run into exit status 139.
+EXIT_WITHOUT_TEARDOWN = True
 
 
 def add_parser(sub) -> None:
@@ -46,4 +56,8 @@ def run(args) -> int:
                   overwrite=args.overwrite, **overrides)
     if args.screenshot:
         print(f"{args.screenshot}: screenshot of the viewer")
+    if args.backend == "open3d" and EXIT_WITHOUT_TEARDOWN:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
     return 0

@@ -339,12 +339,11 @@ class O3DViewer:
         verts = np.array([p - r * e1 - r * e2, p + r * e1 - r * e2, p + r * e1 + r * e2,
                           p - r * e1 + r * e2])
         mesh = self.o3d.geometry.TriangleMesh(self.o3d.utility.Vector3dVector(verts),
-                                              self.o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3],
-                                                                               [0, 2, 1], [0, 3, 2]]))
+                                              self.o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3]]))  # facing up
         mesh.compute_vertex_normals()
         mat = self.rendering.MaterialRecord()
         mat.shader = "defaultLit"
-        mat.base_color = [0.62, 0.64, 0.68, 1.0] if ground == "matte" else [0.35, 0.38, 0.45, 1.0]
+        mat.base_color = [0.62, 0.64, 0.68, 1.0] if ground == "matte" else [0.5, 0.54, 0.62, 1.0]
         mat.base_roughness = 0.9 if ground == "matte" else 0.15
         sc.add_geometry("ground", mesh, mat)
 
@@ -830,7 +829,7 @@ def _compare_available() -> bool:
     import importlib.util
 
     try:
-        return importlib.util.find_spec("pointviz.compare") is not None
+        return importlib.util.find_spec("pointviz.comparison") is not None
     except (ImportError, ValueError):
         return False
 
