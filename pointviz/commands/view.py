@@ -12,7 +12,6 @@ import sys
 
 from .common import add_input_options, add_render_options, make_scene_and_camera
 
-
 #: Leave the process without Python's teardown once the Open3D window has closed and every
 #: output is written: Open3D 0.20's GUI segfaults or hangs now and then while its static
 #: renderer objects are destroyed at interpreter exit (about 1 run in 6 under Xvfb + lavapipe),

@@ -173,7 +173,7 @@ class O3DViewer:
         self.result = gui.ImageWidget(self.o3d.geometry.Image(np.full((8, 8, 3), 40, np.uint8)))
         self.status = gui.Label("loading...")
 
-        sep = int(round(0.4 * em))
+        sep = round(0.4 * em)
         panel = gui.ScrollableVert(sep, gui.Margins(sep, sep, sep, sep))
         self.panel = panel
 
@@ -297,8 +297,8 @@ class O3DViewer:
         self.num_reflections.int_value = s.reflections
         self.num_spp.int_value = s.spp
         self.num_lod.double_value = s.lod_pixels
-        self.sl_az.int_value = int(round(s.light_azimuth_deg))
-        self.sl_el.int_value = int(round(s.light_elevation_deg))
+        self.sl_az.int_value = round(s.light_azimuth_deg)
+        self.sl_el.int_value = round(s.light_elevation_deg)
         self.cmb_ground.selected_text = "scene" if s.ground is None else s.ground
         self.num_width.int_value = s.width
         self.num_height.int_value = s.height
@@ -778,7 +778,7 @@ class O3DViewer:
         return {"timings": self.timings, "rects": self.widget_rects(),
                 "settings": self.settings.to_dict(),
                 "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
-                "preview_points": int(len(self.preview_info.points)),
+                "preview_points": len(self.preview_info.points),
                 "total_points": int(self.preview_info.total),
                 "status": self.status.text, "render_label": self.render_label.text,
                 **({} if a is None else {"automation": a.info})}

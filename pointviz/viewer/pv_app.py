@@ -233,7 +233,7 @@ class PVViewer:
         return {"timings": self.timings, "rects": self.widget_rects(),
                 "settings": self.settings.to_dict(),
                 "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
-                "preview_points": int(len(self.preview_info.points)),
+                "preview_points": len(self.preview_info.points),
                 "total_points": int(self.preview_info.total)}
 
     def close(self) -> None:
