@@ -263,3 +263,42 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
     assert res["ended_after_cancel"] and res["cancel_join_s"] < STOP_TIMEOUT_S
     assert res["label_after_cancel"] == "cancelled"
     assert res["ended_after_close"]
+
+
+def test_worker_compare_renders_the_reconstructed_mesh_with_the_same_view():
+    """The Compare-with-mesh action: the worker reconstructs (Poisson) and renders the mesh with
+    the same camera and shading; on a sphere both pictures cover the same pixels."""
+    pytest.importorskip("embreex", reason="the mesh backend needs embreex")
+    cloud = small_cloud()
+    scene = model.as_scene(cloud)
+    settings = model.ViewerSettings(spp=1, ground="none")
+    camera = Camera.fit(cloud, width=80, height=60)
+    done, box = threading.Event(), {}
+    worker = RenderWorker(lambda *a: None, lambda j, r: (box.update(result=r), done.set()),
+                          lambda j, e: (box.update(error=e), done.set()))
+    worker.submit(scene, settings, camera, compare=True)
+    assert done.wait(120) and worker.shutdown(STOP_TIMEOUT_S)
+    assert "error" not in box, box.get("error")
+    result = box["result"]
+    assert result.mesh_frame is not None and "Poisson" in result.mesh_note
+    a, b = result.frame.alpha > 0.5, result.mesh_frame.alpha > 0.5
+    assert (a & b).sum() / (a | b).sum() > 0.95
+    both = a & b
+    diff = np.abs(result.frame.color - result.mesh_frame.color).mean(axis=2)[both]
+    assert np.median(diff) < 0.05
+
+
+def test_keyframes_make_a_path_that_the_cli_reads(tmp_path):
+    """Add keyframe / Save path: cameras from the viewer become a CameraPath file that
+    ``pointviz path`` accepts."""
+    from pointviz.path import CameraPath
+
+    cloud = small_cloud()
+    path = CameraPath(width=64, height=48, fps=4)
+    for direction in ((0, -0.3, -1), (1, -0.3, 0), (0, -0.3, 1)):
+        path.add(Camera.fit(cloud, direction=direction, width=64, height=48))
+    saved = path.save(tmp_path / "path.json")
+    again = CameraPath.load(saved)
+    assert len(again) == 3 and again.duration == pytest.approx(2.0)
+    first = again.camera_at(0.0)
+    np.testing.assert_allclose(first.eye, Camera.fit(cloud, width=64, height=48).eye, atol=1e-9)
