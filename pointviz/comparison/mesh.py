@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from ..cloud import vertex_normals
 from ..errors import InputError, require
 
 #: Embree (through embreex) takes a finite ``tfar``; rays with ``tmax = inf`` get this instead.
@@ -22,29 +23,6 @@ EMBREE_FAR = 1e37
 #: Colour of a mesh without vertex colours: white, so the material's base colour shows, exactly
 #: as for a cloud without colours.
 DEFAULT_COLOR = (1.0, 1.0, 1.0)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals.
-
-    Parameters
-    ----------
-    vertices : (v, 3) float
-    faces : (f, 3) int
-
-    Returns
-    -------
-    (v, 3) float64
-        Unit normals; zero for a vertex that no non-degenerate face uses.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], fn)
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
 class MeshGeometry:
@@ -237,7 +215,7 @@ class MeshGeometry:
 
     @property
     def n_faces(self) -> int:
-        return int(len(self.faces))
+        return len(self.faces)
 
     def __repr__(self) -> str:
         return (f"MeshGeometry({len(self.vertices)} vertices, {len(self.faces)} faces, "
