@@ -46,11 +46,20 @@ void merge(BatchStats &into, const BatchStats &s, std::mutex &m) {
     into.max_depth = std::max(into.max_depth, s.max_depth);
 }
 
-void add_counts(BatchStats &local, const CountStats &cs) {
+/// Runs `query(stats_hook)` with counting on or off, adding the counts to `local`.
+template <class Query>
+bool counted(bool count, BatchStats &local, Query &&query) {
+    if (!count) {
+        NoStats ns;
+        return query(ns);
+    }
+    CountStats cs;
+    bool r = query(cs);
     local.nodes += cs.nodes;
     local.disks += cs.disks;
     local.depth_sum += cs.max_depth;
     local.max_depth = std::max(local.max_depth, cs.max_depth);
+    return r;
 }
 
 void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, double len,
@@ -88,14 +97,7 @@ void cast_rays(const SurfelTree &tree, const T *rays, size_t n, const TraceOptio
                 local.first_invalid = std::min(local.first_invalid, i);
             } else {
                 ray.spread = pixel_angle;
-                if (count) {
-                    CountStats cs;
-                    hit = closest_hit(tree, ray, opt, h, cs);
-                    add_counts(local, cs);
-                } else {
-                    NoStats ns;
-                    hit = closest_hit(tree, ray, opt, h, ns);
-                }
+                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, h, st); });
             }
             local.hits += hit;
             write_hit(out, i, hit, h, len, rd, tree);
@@ -124,15 +126,7 @@ void occluded(const SurfelTree &tree, const T *rays, const float *t_max, size_t 
             ray.tmin = float(double(t_min) * len);
             ray.tmax = float(double(t_max[i]) * len);
             ray.spread = pixel_angle;
-            bool h;
-            if (count) {
-                CountStats cs;
-                h = any_hit(tree, ray, opt, false, cs);
-                add_counts(local, cs);
-            } else {
-                NoStats ns;
-                h = any_hit(tree, ray, opt, false, ns);
-            }
+            bool h = counted(count, local, [&](auto &st) { return any_hit(tree, ray, opt, false, st); });
             hit[i] = h;
             local.hits += h;
         }
