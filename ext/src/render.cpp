@@ -176,7 +176,6 @@ private:
         intersect(near);
         shadows_.clear();
         next_.clear();
-        const int spp = std::max(1, set_.spp);
         for (size_t i = 0; i < rays_.size(); ++i) {
             const PathRay &pr = rays_[i];
             const Nearest &nh = near[i];
