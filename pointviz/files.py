@@ -25,15 +25,20 @@ def default_file_mode() -> int:
 
 
 def check_output_path(path, overwrite: bool) -> Path:
-    """Refuse to replace an existing file unless asked; the folder must exist."""
+    """Refuse to replace an existing file unless asked; create the folder if it is missing."""
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{p}: is a folder, not a file")
     if p.exists() and not overwrite:
         raise FileExistsError(errno.EEXIST, f"{p}: exists; pass overwrite=True (CLI: --overwrite) to replace it", str(p))
     parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{p}: folder {parent} does not exist")
+    if not parent.is_dir():  # create missing folders, as `make demo` users expect of out/x.png
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError):
+            raise InputError(f"{p}: {parent} is not a folder") from None
+        except OSError as exc:
+            raise InputError(f"{p}: cannot create folder {parent}: {exc.strerror}") from None
     return p
 
 

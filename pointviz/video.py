@@ -32,7 +32,7 @@ def check_video_path(path, overwrite: bool = False) -> Path:
     Parameters
     ----------
     path : str or PathLike
-        Must end in one of VIDEO_EXTENSIONS; its folder must exist.
+        Must end in one of VIDEO_EXTENSIONS; a missing folder is created.
     overwrite : bool
         Allow replacing an existing file.
     """

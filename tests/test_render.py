@@ -287,3 +287,14 @@ def test_open_surface_seen_from_behind_is_visible_by_default():
     assert inside.mean() > 0.5
     assert np.mean((seen.alpha > 0) == inside) > 0.98
     assert hidden.alpha.max() == 0
+
+
+def test_save_creates_missing_folders_but_not_over_a_file(ball, tmp_path):
+    cam = Camera.look_at((0.3, 2.0, 5.0), (0, 1.5, 0), width=8, height=8)
+    frame = pointviz.render(ball, cam, spp=1)
+    out = frame.save(tmp_path / "a" / "b" / "x.png")
+    assert out.exists()
+    (tmp_path / "file").write_text("keep")
+    with pytest.raises(InputError, match="not a folder"):
+        frame.save(tmp_path / "file" / "x.png")
+    assert (tmp_path / "file").read_text() == "keep"
