@@ -327,7 +327,7 @@ CLI_CASES = [
     ("camera-fov-0", ["render", "demo", "-o", "o.png", "--camera", "badcam.json"]),
     ("camera-missing", ["render", "demo", "-o", "o.png", "--camera", "nocam.json"]),
     ("output-exists", ["render", "demo", "-o", "exists.png"]),
-    ("output-folder-missing", ["render", "demo", "-o", "no/such/dir/o.png"]),
+    ("output-folder-is-a-file", ["render", "demo", "-o", "exists.png/o.png"]),
     ("width-negative", ["render", "demo", "-o", "o.png", "--width", "-5"]),
     ("spp-zero", ["render", "demo", "-o", "o.png", "--spp", "0"]),
     ("lod-nan", ["render", "demo", "-o", "o.png", "--lod", "nan"]),
