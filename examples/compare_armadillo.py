@@ -9,6 +9,7 @@ and the speed-accuracy chart ``OUT/speed_accuracy.png``.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -18,12 +19,15 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out", nargs="?", default="compare_armadillo", help="report folder")
+    ap.add_argument("--stability", action="store_true", help="also run the stability sweeps")
+    args = ap.parse_args(argv)
     mesh = DATA / "stanford_armadillo" / "Armadillo.ply"
     if not mesh.is_file():
         print(f"{mesh} not found: this example needs ../shared/data", file=sys.stderr)
         return 1
-    out = Path(argv[0]) if argv and not argv[0].startswith("--") else Path("compare_armadillo")
-    doc = pointviz.compare(mesh, out_dir=out, stability="--stability" in argv)
+    doc = pointviz.compare(mesh, out_dir=Path(args.out), stability=args.stability)
     print(f"{'method':28s} {'pre s':>7s} {'render s':>8s} {'FLIP':>7s} {'normal':>7s} {'holes':>6s}")
     for e in doc["entries"]:
         t, m = e["times"], e["metrics"]
