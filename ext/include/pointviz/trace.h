@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cstdint>
 
+#include "pointviz/leaf_simd.h"
 #include "pointviz/tree.h"
 
 namespace pointviz {
@@ -204,6 +205,18 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
         if (skip) {
         } else if (nd.is_leaf()) {
             uint32_t b = nd.index(), cnt = nd.count();
+#if defined(POINTVIZ_LEAF_SIMD)
+            if (cnt <= 8) {
+                LeafHits lh;
+                intersect_leaf8(ray, &surfels[b], cnt, policy.tfar(), sub_cull, lh);
+                for (uint32_t k = 0; k < cnt; ++k) stats.disk();
+                for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
+                    uint32_t k = uint32_t(__builtin_ctz(m));
+                    if (policy.add({lh.t[k], lh.u2[k], lh.facing[k], surfels[b + k].r, b + k})) return;
+                }
+                cnt = 0;  // done: skip the scalar loop
+            }
+#endif
             for (uint32_t k = b; k < b + cnt; ++k) {
                 const Surfel &s = surfels[k];
                 stats.disk();
