@@ -59,7 +59,12 @@ def main(argv=None) -> int:
         facts["compare_best"] = f"{best['label']}: FLIP {best['metrics']['flip']:.4f}"
         compare_link = ('<p>Quality check: <a href="compare/index.html">surfels against meshes '
                         'reconstructed from the same points</a> (speed against accuracy).</p>')
-    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
+    labels = {"surfels": "surfels", "build_seconds": "tree build (s)",
+              "bytes_per_surfel": "bytes per surfel (tree included)",
+              "render_seconds": "render (s)", "size": "image size", "spp": "samples per pixel",
+              "rays": "rays traced (primary, shadow, reflection)",
+              "mrays_per_second": "million rays per second", "compare_best": "most accurate method"}
+    rows = "".join(f"<tr><th>{html.escape(labels.get(k, k))}</th><td>{html.escape(str(v))}</td></tr>"
                    for k, v in facts.items())
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
 <title>pointviz demo</title><style>body{{font-family:sans-serif;margin:2em;max-width:900px}}
