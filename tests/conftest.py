@@ -49,3 +49,13 @@ def sphere_cloud():
 
     points = fibonacci_sphere(4000)
     return PointCloud(points, normals=points, name="fibonacci sphere")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """Two analytic objects (a sphere and a torus), so that camera paths show parallax."""
+    from pointviz import Scene
+    from pointviz.shapes import sphere, torus
+
+    return Scene([sphere(3000, 0.6, (-0.5, 0.6, 0.0), color=(0.8, 0.3, 0.2)),
+                  torus(4000, 0.5, 0.2, (0.6, 0.2, 0.2), color=(0.9, 0.8, 0.3))], up=(0, 1, 0))

@@ -17,8 +17,6 @@ import pytest
 
 from pointviz.distributed import render_frame_task, scene_spec
 from pointviz.path import CameraPath, render_path
-from pointviz.scene import Scene
-from pointviz.shapes import sphere, torus
 
 distributed = pytest.importorskip("distributed")
 
@@ -26,12 +24,6 @@ W, H = 64, 48
 SETTINGS = {"spp": 1, "reflections": 0, "threads": 1}
 #: Seconds allowed for workers to start or restart on a busy 2-core machine.
 CLUSTER_TIMEOUT_S = 120
-
-
-@pytest.fixture(scope="module")
-def scene():
-    return Scene([sphere(3000, 0.6, (-0.5, 0.6, 0.0), color=(0.8, 0.3, 0.2)),
-                  torus(4000, 0.5, 0.2, (0.6, 0.2, 0.2), color=(0.9, 0.8, 0.3))], up=(0, 1, 0))
 
 
 @pytest.fixture(scope="module")

@@ -18,18 +18,11 @@ from pointviz.errors import CancelledError, FileFormatError, InputError
 from pointviz.images import encode_png
 from pointviz.path import MANIFEST_NAME, CameraPath, is_complete_png, render_path
 from pointviz.scene import Scene
-from pointviz.shapes import sphere, torus
+from pointviz.shapes import sphere
 
 #: Small frames and one sample per pixel keep a whole path well under a second.
 W, H = 64, 48
 SETTINGS = {"spp": 1, "reflections": 0, "threads": 1}
-
-
-@pytest.fixture(scope="module")
-def scene():
-    """Two analytic objects, so that the orbit shows parallax."""
-    return Scene([sphere(3000, 0.6, (-0.5, 0.6, 0.0), color=(0.8, 0.3, 0.2)),
-                  torus(4000, 0.5, 0.2, (0.6, 0.2, 0.2), color=(0.9, 0.8, 0.3))], up=(0, 1, 0))
 
 
 @pytest.fixture(scope="module")
