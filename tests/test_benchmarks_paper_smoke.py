@@ -36,17 +36,18 @@ def test_paper_figures_quick_writes_figures_5_to_7(shared_data, tmp_path):
     res = run_script("paper_figures.py", tmp_path, shared_data, "--models", "armadillo,dragon")
     assert [r["model"] for r in res["fig5"]] == ["armadillo", "dragon"]
     for rec in res["fig5"]:
-        assert set(rec["variants"]) == {"kdtree", "lod", "lod+cull", "full"}
+        assert set(rec["variants"]) == {"kdtree", "bvh", "lod", "lod+cull", "full"}
         for v in rec["variants"].values():
             assert v["seconds"] > 0
             assert {"nodes_visited", "disk_tests", "max_depth"} <= set(v["all_rays"])
-            assert "drop_vs_kdtree" in v
+            assert "drop_vs_kdtree" in v and "drop_vs_bvh" in v
     assert "embree discs" in res["fig5"][0]["embree"]
     assert "embree triangles" in res["fig5"][0]["embree"]  # Armadillo has its source mesh
     for rec in res["fig7"]:
         assert [r["factor"] for r in rec["rows"]] == [1.0, 1.5, 2.0, 4.0, 8.0]
         for r in rec["rows"]:
-            assert {"lod", "no lod", "kdtree"} <= set(r["seconds"])
+            assert {"lod", "no lod", "kdtree", "bvh"} <= set(r["seconds"])
+            assert set(r["full_drop_vs"]) == {"kdtree", "bvh"}
             assert 0.0 <= r["flip"] <= 1.0
     assert {p.name for p in tmp_path.glob("*.png")} == {
         "fig5_traversal_time.png", "fig6_stats.png", "fig7_distance.png"}
