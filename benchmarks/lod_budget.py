@@ -222,13 +222,15 @@ def measure(model, args) -> list[dict]:
             err_map, mean, _ = flip_evaluator.evaluate(ref_img, fr.to_srgb8().astype(np.float32) / 255.0,
                                                        pf.FLIP_RANGE, applyMagma=False)
             node = stop_nodes(stats, local, full["index"], cam.pixel_angle, lp)
+            # check of the simulated cut: pixels whose nearest disk the traversal took from a node
+            lod_hits = float(np.mean(scene.cast_rays(rays, camera=cam, lod_pixels=lp)["index"] == -2))
             feats = pixel_features(stats, node, local, cam.pixel_angle)
             rows.append({"model": model.name, "factor": factor, "lod_pixels": lp,
                          "flip": float(mean), "features": feats.mean(axis=0).tolist(),
-                         "stopped_fraction": float(np.mean(node >= 0)),
+                         "stopped_fraction": float(np.mean(node >= 0)), "lod_hit_fraction": lod_hits,
                          "seconds": fr.stats["seconds"], "full_seconds": ref.stats["seconds"]})
             print(f"{model.name:<11}{factor:>5g}x {lp:>4g}px  FLIP {mean:.4f}  stopped "
-                  f"{100 * rows[-1]['stopped_fraction']:5.1f}%  features "
+                  f"{100 * rows[-1]['stopped_fraction']:5.1f}% (traversal {100 * lod_hits:5.1f}%)  features "
                   + " ".join(f"{v:.4g}" for v in rows[-1]["features"]), flush=True)
     return rows
 

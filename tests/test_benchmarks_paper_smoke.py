@@ -83,3 +83,14 @@ def test_bench_frame_quick_writes_ratio(shared_data, tmp_path):
     assert res["frame_seconds"] > 0 and res["primary_seconds"] > 0
     assert res["ratio"] == pytest.approx(res["frame_seconds"] / res["primary_seconds"])
     assert {"ratio", "seconds"} == set(res["meets"])
+
+
+def test_lod_budget_quick_fits_a_bound(shared_data, tmp_path):
+    res = run_script("lod_budget.py", tmp_path, shared_data)
+    assert set(res["fit"]["coefficients"]) == {"spread", "thickness", "colour", "overhang"}
+    assert all(v >= 0 for v in res["fit"]["coefficients"].values())
+    cal = [r for r in res["rows"] if r["model"] != res["fit"]["held_out"]]
+    assert cal and all(r["bounded"] for r in cal)  # the bound covers its calibration frames
+    for r in res["rows"]:
+        assert 0.0 <= r["flip"] <= 1.0 and 0.0 <= r["stopped_fraction"] <= 1.0
+    assert {p.name for p in tmp_path.glob("*.png")} == {"lod_budget_calibration.png"}
