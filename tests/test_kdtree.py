@@ -203,3 +203,15 @@ def test_render_equals_the_hierarchy():
                                           threads=1)
     np.testing.assert_allclose(frames["kdtree"].color, frames["bvh"].color, atol=1e-5)
     np.testing.assert_allclose(frames["kdtree"].depth, frames["bvh"].depth, rtol=1e-5)
+
+
+def test_pickled_scene_rebuilds_the_same_kdtree(soup, rng):
+    import pickle
+
+    scene = SurfelScene(soup, variant="kdtree")
+    copy = pickle.loads(pickle.dumps(scene))
+    assert copy.variant == "kdtree" and copy.tree.n_references == scene.tree.n_references
+    rays = random_rays(rng, 300)
+    a, b = scene.cast_rays(rays), copy.cast_rays(rays)
+    for key in ("t_hit", "normals", "index", "count"):
+        np.testing.assert_array_equal(a[key], b[key])
