@@ -118,7 +118,8 @@ def node_statistics(scene, cloud) -> dict:
         leaf_of_surfel[lo[i]:hi[i]] = i
     inv_order = np.empty_like(order)
     inv_order[order] = np.arange(len(order))
-    return {"center": np.asarray(na["center"], np.float64), "radius": np.asarray(na["radius"], np.float64),
+    return {"center": np.asarray(na["center"], np.float64),
+            "radius": np.asarray(na["radius"], np.float64),
             "axis": axis, "spread": np.asarray(na["cone"], np.float64), "thickness": thickness,
             "colour": colour, "parent": parent, "leaf": leaf, "leaf_of_surfel": leaf_of_surfel,
             "inv_order": inv_order}
@@ -219,18 +220,21 @@ def measure(model, args) -> list[dict]:
         ref_img = ref.to_srgb8().astype(np.float32) / 255.0
         for lp in THRESHOLDS:
             fr = pointviz.render(scene, cam, lod_pixels=lp, **kw)
-            err_map, mean, _ = flip_evaluator.evaluate(ref_img, fr.to_srgb8().astype(np.float32) / 255.0,
-                                                       pf.FLIP_RANGE, applyMagma=False)
+            img = fr.to_srgb8().astype(np.float32) / 255.0
+            _, mean, _ = flip_evaluator.evaluate(ref_img, img, pf.FLIP_RANGE, applyMagma=False)
             node = stop_nodes(stats, local, full["index"], cam.pixel_angle, lp)
             # check of the simulated cut: pixels whose nearest disk the traversal took from a node
-            lod_hits = float(np.mean(scene.cast_rays(rays, camera=cam, lod_pixels=lp)["index"] == -2))
+            lod_out = scene.cast_rays(rays, camera=cam, lod_pixels=lp)
+            lod_hits = float(np.mean(lod_out["index"] == -2))
             feats = pixel_features(stats, node, local, cam.pixel_angle)
             rows.append({"model": model.name, "factor": factor, "lod_pixels": lp,
                          "flip": float(mean), "features": feats.mean(axis=0).tolist(),
-                         "stopped_fraction": float(np.mean(node >= 0)), "lod_hit_fraction": lod_hits,
+                         "stopped_fraction": float(np.mean(node >= 0)),
+                         "lod_hit_fraction": lod_hits,
                          "seconds": fr.stats["seconds"], "full_seconds": ref.stats["seconds"]})
             print(f"{model.name:<11}{factor:>5g}x {lp:>4g}px  FLIP {mean:.4f}  stopped "
-                  f"{100 * rows[-1]['stopped_fraction']:5.1f}% (traversal {100 * lod_hits:5.1f}%)  features "
+                  f"{100 * rows[-1]['stopped_fraction']:5.1f}% (traversal {100 * lod_hits:5.1f}%)"
+                  "  features "
                   + " ".join(f"{v:.4g}" for v in rows[-1]["features"]), flush=True)
     return rows
 
@@ -278,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
     for model in models:
         rows += measure(model, args)
     model_fit = fit(rows)
-    print("\ncoefficients " + ", ".join(f"{k} {v:.4g}" for k, v in model_fit["coefficients"].items())
+    coef = model_fit["coefficients"]
+    print("\ncoefficients " + ", ".join(f"{k} {v:.4g}" for k, v in coef.items())
           + f"; bound {model_fit['bound_scale']:.2f} x pred + {model_fit['bound_floor']:.4f}; "
           f"corr(pred, FLIP) {model_fit['corr']:.3f}; held-out {HELD_OUT} bounded: "
           f"{model_fit['held_out_bounded']}")

@@ -335,7 +335,8 @@ def load_models(args, names, size: int) -> list[Model]:
                 m.name = "dragon-raw"
                 models.append(m)
             else:
-                raise SystemExit(f"--models: unknown model {name!r} (armadillo, dragon, dragon-raw)")
+                raise SystemExit(f"--models: unknown model {name!r} "
+                                 "(armadillo, dragon, dragon-raw)")
         except common.DataMissingError as exc:
             print(f"SKIP {name}: {exc}")
     return models
@@ -551,7 +552,8 @@ def figures_5_6(model: Model, args) -> dict:
 def print_fig56(rec: dict) -> None:
     """Figure 5/6 table of one model."""
     print(f"\n== Figures 5/6: {rec['model']} ({rec['n']:,} surfels, {rec['pixels']}^2 rays)")
-    head = (f"{'variant':<17}{'time ms':>9}{'vs kd':>7}{'vs bvh':>7}{'nodes/ray':>10}{'disks/ray':>10}"
+    head = (f"{'variant':<17}{'time ms':>9}{'vs kd':>7}{'vs bvh':>7}{'nodes/ray':>10}"
+            f"{'disks/ray':>10}"
             f"{'maxdepth':>9}{'| hit rays: nodes':>18}{'disks':>7}{'depth':>7}{'boxdepth':>9}")
     print(head)
     print("-" * len(head))
@@ -663,9 +665,10 @@ def figure_7(model: Model, args) -> dict:
                "hit_mismatch": float(np.mean(hit != np.isfinite(out_lod["t_hit"])))}
         row["lod_speedup"] = row["seconds"]["no lod"] / row["seconds"]["lod"]
         # the paper's claim: full (with LoD) against the KD-tree, as a drop in time
-        row["full_drop_vs"] = {b: 1.0 - row["seconds"]["lod"] / row["seconds"][b] for b in BASELINES}
-        row["full_drop_vs_hit_rays"] = {b: 1.0 - per_hit_ray["lod"]["seconds"] / per_hit_ray[b]["seconds"]
-                                        for b in BASELINES}
+        row["full_drop_vs"] = {b: 1.0 - row["seconds"]["lod"] / row["seconds"][b]
+                               for b in BASELINES}
+        row["full_drop_vs_hit_rays"] = {
+            b: 1.0 - per_hit_ray["lod"]["seconds"] / per_hit_ray[b]["seconds"] for b in BASELINES}
         rows.append(row)
     for e in (discs, tris):
         if e is not None:
@@ -691,7 +694,8 @@ def print_fig7(rec: dict) -> None:
               + f"{r['lod_speedup']:>7.2f}x{-100 * r['full_drop_vs']['kdtree']:>+7.0f}%"
               f"{-100 * r['full_drop_vs']['bvh']:>+8.0f}%"
               f"{-100 * r['full_drop_vs_hit_rays']['kdtree']:>+9.0f}%"
-              f"{-100 * r['full_drop_vs_hit_rays']['bvh']:>+5.0f}%{r['nodes_per_ray']['lod']:>7.1f}/"
+              f"{-100 * r['full_drop_vs_hit_rays']['bvh']:>+5.0f}%"
+              f"{r['nodes_per_ray']['lod']:>7.1f}/"
               f"{r['nodes_per_ray']['no lod']:<6.1f}{r['psnr_db']:>8.1f}{r['flip']:>7.3f}"
               f"{100 * r['lod_node_hits']:>8.1f}")
     p = rec["paper"]
@@ -789,9 +793,11 @@ def print_kdtree_tuning(rec: dict) -> None:
         print(f"{st['key']:<20}{st['references_per_surfel']:>12.2f}{st['bytes_per_surfel']:>9.0f}"
               f"{st['build_seconds']:>8.1f}"
               + "".join(f"{1e3 * r['seconds'][st['key']]:>10.1f}"
-                        f"{r['seconds'][st['key']] / r['seconds']['full']:>7.2f}" for r in rec["rows"]))
+                        f"{r['seconds'][st['key']] / r['seconds']['full']:>7.2f}"
+                        for r in rec["rows"]))
     for k in ("bvh", "full"):
-        print(f"{k:<20}{'':>29}" + "".join(f"{1e3 * r['seconds'][k]:>10.1f}{'':>7}" for r in rec["rows"]))
+        print(f"{k:<20}{'':>29}"
+              + "".join(f"{1e3 * r['seconds'][k]:>10.1f}{'':>7}" for r in rec["rows"]))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -804,7 +810,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=float, default=PAPER_SIZE,
                    help="surfels per model (default the paper's dragon, %(default)g)")
     p.add_argument("--models", default="armadillo,dragon,dragon-raw",
-                   help="armadillo, dragon (upsampled to --size), dragon-raw (the scans as they are)")
+                   help="armadillo, dragon (upsampled to --size), "
+                        "dragon-raw (the scans as they are)")
     p.add_argument("--figures", default="5,7",
                    help="which figures: 5 (with 6), 7, kd (the KD-tree's SAH settings swept)")
     p.add_argument("--replot", action="store_true",
