@@ -264,6 +264,18 @@ class SurfelScene:
         """The core tree object (``pointviz._core.SurfelTree``), for renderers and diagnostics."""
         return self._tree
 
+    def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds of the disks and the ground level along ``up`` (see
+        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        that a frame costs nothing that grows with the cloud."""
+        from .scene import cloud_extent
+
+        key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
+        cache = self.__dict__.setdefault("_extents", {})
+        if key not in cache:
+            cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+        return cache[key]
+
     def trace_options(self, lod_pixels: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
