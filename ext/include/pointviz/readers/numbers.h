@@ -1,0 +1,85 @@
+// pointviz — numbers in text and in binary rows: the token scanner and the scalar decoder that
+// every table reader (PLY, PCD, XYZ) shares. Header-only so that tests reach each piece.
+#pragma once
+
+#include <charconv>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <system_error>
+
+namespace pointviz {
+
+/// Scalar types a binary row may hold (PLY and PCD types map here).
+enum class Scalar : uint8_t { I8, U8, I16, U16, I32, U32, F32, F64 };
+
+/// Bytes of one scalar.
+inline size_t scalar_size(Scalar s) {
+    switch (s) {
+        case Scalar::I8: case Scalar::U8: return 1;
+        case Scalar::I16: case Scalar::U16: return 2;
+        case Scalar::I32: case Scalar::U32: case Scalar::F32: return 4;
+        case Scalar::F64: return 8;
+    }
+    return 0;
+}
+
+/// Decodes one scalar at `p` (unaligned), swapping bytes when `swap` (big-endian data).
+inline double decode_scalar(const char *p, Scalar s, bool swap) {
+    unsigned char b[8];
+    size_t n = scalar_size(s);
+    std::memcpy(b, p, n);
+    if (swap)
+        for (size_t i = 0; i < n / 2; ++i) {
+            unsigned char t = b[i];
+            b[i] = b[n - 1 - i];
+            b[n - 1 - i] = t;
+        }
+    switch (s) {
+        case Scalar::I8: { int8_t v; std::memcpy(&v, b, 1); return v; }
+        case Scalar::U8: { uint8_t v; std::memcpy(&v, b, 1); return v; }
+        case Scalar::I16: { int16_t v; std::memcpy(&v, b, 2); return v; }
+        case Scalar::U16: { uint16_t v; std::memcpy(&v, b, 2); return v; }
+        case Scalar::I32: { int32_t v; std::memcpy(&v, b, 4); return v; }
+        case Scalar::U32: { uint32_t v; std::memcpy(&v, b, 4); return v; }
+        case Scalar::F32: { float v; std::memcpy(&v, b, 4); return double(v); }
+        case Scalar::F64: { double v; std::memcpy(&v, b, 8); return v; }
+    }
+    return 0.0;
+}
+
+/// Whether `c` separates tokens on a line: blanks always, commas and semicolons when `commas`
+/// (XYZ-style text is written with either).
+inline bool is_separator(char c, bool commas) {
+    return c == ' ' || c == '\t' || c == '\r' || c == '\v' || c == '\f' ||
+           (commas && (c == ',' || c == ';'));
+}
+
+/// Parses the whole token [b, e) as a number: decimal or scientific, optional sign, "nan",
+/// "inf"/"infinity" (any case). Values beyond the double range become +-inf, as in strtod.
+/// Returns false when the token is not entirely a number.
+inline bool parse_number(const char *b, const char *e, double &out) {
+    if (b == e) return false;
+    bool neg = false;
+    if (*b == '+' || *b == '-') {
+        neg = *b == '-';
+        ++b;
+        if (b == e || *b == '+' || *b == '-') return false;  // from_chars would take "--1"
+    }
+    double v = 0.0;
+    auto r = std::from_chars(b, e, v, std::chars_format::general);
+    if (r.ptr != e) return false;
+    if (r.ec == std::errc::result_out_of_range) {
+        // from_chars leaves v untouched: decide overflow or underflow from the exponent's sign
+        const char *x = b;
+        while (x != e && *x != 'e' && *x != 'E') ++x;
+        bool tiny = x != e && x + 1 != e && x[1] == '-';
+        v = tiny ? 0.0 : std::numeric_limits<double>::infinity();
+    } else if (r.ec != std::errc()) {
+        return false;
+    }
+    out = neg ? -v : v;
+    return true;
+}
+
+}  // namespace pointviz

@@ -1,0 +1,64 @@
+// pointviz — reading a block of numeric rows from a file at disk speed: the data part of a PLY
+// element, of a PCD file or of an XYZ-style text file. The formats' headers are parsed (and
+// checked against the file) by the Python readers; this reads the rows they describe, in
+// parallel, with progress and cancellation, and never trusts a count it has not checked.
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "pointviz/progress.h"
+#include "pointviz/readers/numbers.h"
+
+namespace pointviz {
+
+/// How the rows are stored.
+enum class Encoding : uint8_t { Ascii, BinaryLittle, BinaryBig };
+
+/// One block of rows of one file.
+struct TableSpec {
+    std::string path;              ///< the file
+    uint64_t offset = 0;           ///< first byte of the rows (after the header)
+    Encoding encoding = Encoding::Ascii;
+    /// Every column of a row in file order. Binary: their types give the row layout. ASCII: only
+    /// the count matters (every token is parsed as a double).
+    std::vector<Scalar> columns;
+    /// Rows to read; -1 (ASCII only): every line to the end of the file, skipping blank lines
+    /// and comment lines (first non-blank character '#' or "//").
+    int64_t rows = -1;
+    std::vector<uint32_t> wanted;  ///< columns returned, in this order (indices into `columns`)
+    /// ASCII: a row must hold exactly `columns.size()` values; else at least that many (the
+    /// extra values are ignored, as XYZ readers do).
+    bool exact_columns = true;
+    bool commas = false;           ///< ASCII: ',' and ';' separate values too
+};
+
+/// The rows read from one TableSpec.
+struct Table {
+    std::vector<double> values;    ///< rows x wanted.size(), row-major
+    uint64_t rows = 0;
+    /// ASCII with a row count: lines after the rows (a last line without '\n' counts), which
+    /// belong to the file's other elements.
+    uint64_t lines_after = 0;
+};
+
+/// The data ends before the rows the spec asks for.
+struct TruncatedData : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+/// A row that is not what the spec says: too few or too many values, a token that is not a
+/// number. The message names the row (0-based, counted from the first row of the block).
+struct MalformedData : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+/// Reads every spec into `out` (resized to match). Several specs are read in parallel, one per
+/// worker; a single spec is split across workers by rows. Results never depend on `threads`.
+/// Throws TruncatedData, MalformedData, std::runtime_error (I/O, bad spec) or Cancelled; with
+/// several specs the error of the lowest-numbered failing spec is thrown.
+void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+                 Progress &progress);
+
+}  // namespace pointviz

@@ -1,0 +1,270 @@
+// pointviz — reading numeric rows from PLY, PCD and XYZ data blocks.
+#include "pointviz/readers/table.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <mutex>
+
+#include "pointviz/parallel.h"
+
+namespace pointviz {
+namespace {
+
+/// Bytes read from disk per call between cancellation checks (about a millisecond from the page
+/// cache, a few from disk).
+constexpr size_t kReadChunk = size_t(4) << 20;
+/// Rows parsed between cancellation checks and progress updates (a few ms of ASCII parsing).
+constexpr size_t kRowGrain = 16384;
+
+/// Closes a FILE on every path out.
+struct FileCloser {
+    void operator()(std::FILE *f) const { std::fclose(f); }
+};
+
+/// The bytes of `path` from `offset` to its end, or at most `limit` of them.
+std::vector<char> read_from(const std::string &path, uint64_t offset, uint64_t limit,
+                            Progress &progress) {
+    std::unique_ptr<std::FILE, FileCloser> f(std::fopen(path.c_str(), "rb"));
+    if (!f) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
+    if (std::fseek(f.get(), 0, SEEK_END) != 0)
+        throw std::runtime_error("cannot seek in " + path);
+    long end = std::ftell(f.get());
+    if (end < 0) throw std::runtime_error("cannot tell the size of " + path);
+    if (uint64_t(end) < offset)
+        throw TruncatedData("the file ends at byte " + std::to_string(end) +
+                            ", before its data starts at byte " + std::to_string(offset));
+    if (std::fseek(f.get(), long(offset), SEEK_SET) != 0)
+        throw std::runtime_error("cannot seek in " + path);
+    std::vector<char> buf(size_t(std::min(uint64_t(end) - offset, limit)));
+    size_t got = 0;
+    while (got < buf.size()) {
+        progress.check();
+        size_t want = std::min(kReadChunk, buf.size() - got);
+        size_t n = std::fread(buf.data() + got, 1, want, f.get());
+        if (n == 0) throw std::runtime_error("read error in " + path);
+        got += n;
+    }
+    return buf;
+}
+
+std::string row_name(uint64_t row) { return "row " + std::to_string(row); }
+
+/// A token for an error message: printable ASCII as is, other bytes as \xNN (messages must be
+/// valid text whatever the file holds), at most kMaxQuoted bytes of it.
+std::string quoted_token(const char *b, const char *e) {
+    constexpr ptrdiff_t kMaxQuoted = 40;
+    static const char hex[] = "0123456789abcdef";
+    std::string out;
+    for (const char *p = b; p != e && p - b < kMaxQuoted; ++p) {
+        unsigned char c = static_cast<unsigned char>(*p);
+        if (c >= 0x20 && c < 0x7f && c != '\\') {
+            out += char(c);
+        } else {
+            out += "\\x";
+            out += hex[c >> 4];
+            out += hex[c & 15];
+        }
+    }
+    return out;
+}
+
+/// First error of a parallel loop, by the lowest item that failed. Errors do not stop the loop
+/// (only cancellation does), so the error reported never depends on timing or thread count.
+struct FirstError {
+    std::mutex mu;
+    std::exception_ptr err;
+    uint64_t item = ~uint64_t(0);
+
+    void record(uint64_t at) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (at < item) {
+            item = at;
+            err = std::current_exception();
+        }
+    }
+    /// Throws the first error, or Cancelled if the loop was stopped before finishing.
+    void rethrow(const Progress &progress) {
+        if (err) std::rethrow_exception(err);
+        progress.check();
+    }
+};
+
+/// Parses one ASCII row [b, e) into `dst` (the wanted columns); `slot[c]` is the output index of
+/// column c or -1.
+void parse_row(const char *b, const char *e, const TableSpec &spec, const std::vector<int> &slot,
+               double *dst, uint64_t row) {
+    const size_t ncols = spec.columns.size();
+    size_t c = 0;
+    const char *p = b;
+    for (;;) {
+        while (p != e && is_separator(*p, spec.commas)) ++p;
+        if (p == e) break;
+        const char *t = p;
+        while (p != e && !is_separator(*p, spec.commas)) ++p;
+        if (c < ncols) {
+            double v;
+            if (!parse_number(t, p, v)) {
+                throw MalformedData(row_name(row) + " holds a non-number '" +
+                                    quoted_token(t, p) + "'");
+            }
+            if (slot[c] >= 0) dst[slot[c]] = v;
+        }
+        ++c;
+        if (c > ncols && !spec.exact_columns) break;  // extra values are ignored
+    }
+    if (c < ncols || (spec.exact_columns && c != ncols))
+        throw MalformedData(row_name(row) + " has " + std::to_string(c) + " values, expected " +
+                            std::to_string(ncols));
+}
+
+/// Whether the line [b, e) holds nothing to read: blank, or a comment (text tables only).
+bool skip_line(const char *b, const char *e) {
+    while (b != e && is_separator(*b, false)) ++b;
+    return b == e || *b == '#' || (e - b >= 2 && b[0] == '/' && b[1] == '/');
+}
+
+void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
+                Progress &progress, const std::vector<int> &slot) {
+    const char *data = buf.data();
+    const char *end = data + buf.size();
+    // Begin/end byte offsets of each row's line.
+    std::vector<uint64_t> bounds;
+    if (spec.rows >= 0) bounds.reserve(2 * size_t(spec.rows));
+    const char *p = data;
+    size_t since_check = 0;
+    while (p < end && (spec.rows < 0 || int64_t(bounds.size() / 2) < spec.rows)) {
+        const char *nl = static_cast<const char *>(std::memchr(p, '\n', size_t(end - p)));
+        const char *le = nl ? nl : end;
+        if (spec.rows >= 0 || !skip_line(p, le)) {
+            bounds.push_back(uint64_t(p - data));
+            bounds.push_back(uint64_t(le - data));
+        }
+        p = nl ? nl + 1 : end;
+        if (++since_check == kRowGrain) {
+            since_check = 0;
+            progress.check();
+        }
+    }
+    const uint64_t nrows = bounds.size() / 2;
+    if (spec.rows >= 0 && nrows < uint64_t(spec.rows))
+        throw TruncatedData("the data ends after " + std::to_string(nrows) + " of the " +
+                            std::to_string(spec.rows) + " rows");
+    if (spec.rows >= 0) {  // lines after the rows, for the file's other elements
+        uint64_t after = 0;
+        const char *q = p;
+        while (q < end) {
+            const char *nl = static_cast<const char *>(std::memchr(q, '\n', size_t(end - q)));
+            ++after;
+            q = nl ? nl + 1 : end;
+        }
+        out.lines_after = after;
+    }
+    const size_t nw = spec.wanted.size();
+    out.rows = nrows;
+    out.values.assign(size_t(nrows) * nw, 0.0);
+    FirstError first;
+    parallel_for(size_t(nrows), kRowGrain, threads, [&](size_t b, size_t e, int) {
+        try {
+            progress.check();
+            for (size_t r = b; r < e; ++r)
+                parse_row(data + bounds[2 * r], data + bounds[2 * r + 1], spec, slot,
+                          out.values.data() + r * nw, r);
+            progress.advance(bounds[2 * (e - 1) + 1] - bounds[2 * b]);
+        } catch (...) {
+            first.record(b);
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+}
+
+void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
+                 Progress &progress) {
+    std::vector<size_t> col_offset(spec.columns.size());
+    size_t row_bytes = 0;
+    for (size_t c = 0; c < spec.columns.size(); ++c) {
+        col_offset[c] = row_bytes;
+        row_bytes += scalar_size(spec.columns[c]);
+    }
+    if (spec.rows < 0) throw std::runtime_error("binary tables need a row count");
+    const uint64_t nrows = uint64_t(spec.rows);
+    if (row_bytes == 0) throw std::runtime_error("binary rows of zero bytes");
+    if (nrows > buf.size() / row_bytes)
+        throw TruncatedData("the rows need " + std::to_string(nrows) + " x " +
+                            std::to_string(row_bytes) + " bytes, the data has " +
+                            std::to_string(buf.size()));
+    const bool swap = spec.encoding == Encoding::BinaryBig;
+    const size_t nw = spec.wanted.size();
+    out.rows = nrows;
+    out.values.assign(size_t(nrows) * nw, 0.0);
+    FirstError first;
+    parallel_for(size_t(nrows), kRowGrain * 8, threads, [&](size_t b, size_t e, int) {
+        try {
+            progress.check();
+            for (size_t r = b; r < e; ++r) {
+                const char *row = buf.data() + r * row_bytes;
+                double *dst = out.values.data() + r * nw;
+                for (size_t k = 0; k < nw; ++k) {
+                    uint32_t c = spec.wanted[k];
+                    dst[k] = decode_scalar(row + col_offset[c], spec.columns[c], swap);
+                }
+            }
+            progress.advance((e - b) * row_bytes);
+        } catch (...) {
+            first.record(b);
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+}
+
+void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress) {
+    if (spec.columns.empty()) throw std::runtime_error("a table needs at least one column");
+    std::vector<int> slot(spec.columns.size(), -1);
+    for (size_t k = 0; k < spec.wanted.size(); ++k) {
+        if (spec.wanted[k] >= spec.columns.size())
+            throw std::runtime_error("wanted column " + std::to_string(spec.wanted[k]) +
+                                     " of a " + std::to_string(spec.columns.size()) +
+                                     "-column table");
+        slot[spec.wanted[k]] = int(k);
+    }
+    uint64_t limit = ~uint64_t(0);
+    if (spec.encoding != Encoding::Ascii && spec.rows >= 0) {  // the rows, not what follows
+        uint64_t row_bytes = 0;
+        for (Scalar c : spec.columns) row_bytes += scalar_size(c);
+        if (uint64_t(spec.rows) <= ~uint64_t(0) / row_bytes) limit = uint64_t(spec.rows) * row_bytes;
+    }
+    std::vector<char> buf = read_from(spec.path, spec.offset, limit, progress);
+    if (spec.encoding == Encoding::Ascii)
+        read_ascii(spec, buf, out, threads, progress, slot);
+    else
+        read_binary(spec, buf, out, threads, progress);
+}
+
+}  // namespace
+
+void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+                 Progress &progress) {
+    out.assign(specs.size(), Table{});
+    if (specs.size() == 1) {
+        read_one(specs[0], out[0], threads, progress);
+        return;
+    }
+    // Several files (the scans of a .conf): one file per worker, each read serially.
+    FirstError first;
+    parallel_for(specs.size(), 1, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            try {
+                read_one(specs[i], out[i], 1, progress);
+            } catch (...) {
+                first.record(i);
+            }
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+}
+
+}  // namespace pointviz
