@@ -603,7 +603,7 @@ def test_core_reader_gives_the_same_rows_for_any_thread_count(tmp_path, rng):
     np.savetxt(path, pts, fmt="%.17g")
     spec = table.spec(path, offset=0, encoding="ascii", columns=["f64"] * 3, rows=-1,
                       wanted=[0, 1, 2])
-    outs = [table.read([spec], threads=t)[0][0] for t in (1, 2, 4)]
+    outs = [table.read([spec], threads=t)[0].values for t in (1, 2, 4)]
     np.testing.assert_array_equal(outs[0], pts)  # %.17g round trips exactly
     for out in outs[1:]:
         np.testing.assert_array_equal(out, outs[0])

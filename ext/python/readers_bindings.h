@@ -6,6 +6,7 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
+#include <nanobind/stl/array.h>
 
 #include <memory>
 #include <utility>
@@ -61,7 +62,9 @@ inline void bind_readers(nb::module_ &m) {
         .def_rw("rows", &TableSpec::rows)
         .def_rw("wanted", &TableSpec::wanted)
         .def_rw("exact_columns", &TableSpec::exact_columns)
-        .def_rw("commas", &TableSpec::commas);
+        .def_rw("commas", &TableSpec::commas)
+        .def_rw("transform", &TableSpec::transform)
+        .def_rw("affine", &TableSpec::affine);
     nb::exception<pointviz::TruncatedData>(m, "TruncatedData", PyExc_ValueError);
     nb::exception<pointviz::MalformedData>(m, "MalformedData", PyExc_ValueError);
 
@@ -69,13 +72,22 @@ inline void bind_readers(nb::module_ &m) {
         pointviz::Progress progress;
         std::vector<pointviz::Table> tables = read_tables_released(specs, threads, progress);
         nb::list out;
-        for (size_t i = 0; i < tables.size(); ++i)
-            out.append(nb::make_tuple(table_array(tables[i], specs[i].wanted.size()),
-                                      tables[i].lines_after));
+        for (size_t i = 0; i < tables.size(); ++i) {
+            const pointviz::PositionStats &ps = tables[i].positions;
+            nb::dict d;
+            d["values"] = table_array(tables[i], specs[i].wanted.size());
+            d["lines_after"] = tables[i].lines_after;
+            d["lo"] = ps.lo;
+            d["hi"] = ps.hi;
+            d["sum"] = ps.sum;
+            d["finite"] = ps.finite;
+            out.append(d);
+        }
         return out;
     }, "specs"_a, "threads"_a = 0,
-    "Read the numeric rows each TableSpec describes (several files in parallel). Returns a list "
-    "of ((rows, len(wanted)) float64 array, lines after the rows).");
+    "Read the numeric rows each TableSpec describes (several files in parallel). Returns one dict "
+    "per spec: values ((rows, len(wanted)) float64), lines_after, and lo, hi, sum, finite of the "
+    "positions as read (before the affine map).");
 }
 
 }  // namespace pointviz_bindings

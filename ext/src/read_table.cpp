@@ -128,6 +128,27 @@ bool skip_line(const char *b, const char *e) {
     return b == e || *b == '#' || (e - b >= 2 && b[0] == '/' && b[1] == '/');
 }
 
+/// Positions (first three values) of rows [b, e): adds them to `stats` as read, then applies
+/// the spec's affine map.
+void place_rows(const TableSpec &spec, double *values, size_t nw, size_t b, size_t e,
+                PositionStats &stats) {
+    if (nw < 3) return;
+    const std::array<double, 12> &m = spec.affine;
+    for (size_t r = b; r < e; ++r) {
+        double *v = values + r * nw;
+        stats.add(v);
+        if (!spec.transform) continue;
+        const double x = v[0], y = v[1], z = v[2];
+        for (int j = 0; j < 3; ++j) v[j] = x * m[j] + y * m[3 + j] + z * m[6 + j] + m[9 + j];
+    }
+}
+
+/// Per-chunk statistics merged in chunk order (deterministic sums).
+void merge_stats(const std::vector<PositionStats> &parts, PositionStats &out) {
+    out = PositionStats{};
+    for (const PositionStats &p : parts) out.merge(p);
+}
+
 void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
                 Progress &progress, const std::vector<int> &slot) {
     const char *data = buf.data();
@@ -168,18 +189,21 @@ void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out,
     out.rows = nrows;
     out.values.assign(size_t(nrows) * nw, 0.0);
     FirstError first;
+    std::vector<PositionStats> parts((size_t(nrows) + kRowGrain - 1) / kRowGrain);
     parallel_for(size_t(nrows), kRowGrain, threads, [&](size_t b, size_t e, int) {
         try {
             progress.check();
             for (size_t r = b; r < e; ++r)
                 parse_row(data + bounds[2 * r], data + bounds[2 * r + 1], spec, slot,
                           out.values.data() + r * nw, r);
+            place_rows(spec, out.values.data(), nw, b, e, parts[b / kRowGrain]);
             progress.advance(bounds[2 * (e - 1) + 1] - bounds[2 * b]);
         } catch (...) {
             first.record(b);
         }
     }, &progress.cancel);
     first.rethrow(progress);
+    merge_stats(parts, out.positions);
 }
 
 void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
@@ -202,7 +226,9 @@ void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out
     out.rows = nrows;
     out.values.assign(size_t(nrows) * nw, 0.0);
     FirstError first;
-    parallel_for(size_t(nrows), kRowGrain * 8, threads, [&](size_t b, size_t e, int) {
+    const size_t grain = kRowGrain * 8;
+    std::vector<PositionStats> parts((size_t(nrows) + grain - 1) / grain);
+    parallel_for(size_t(nrows), grain, threads, [&](size_t b, size_t e, int) {
         try {
             progress.check();
             for (size_t r = b; r < e; ++r) {
@@ -213,12 +239,14 @@ void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out
                     dst[k] = decode_scalar(row + col_offset[c], spec.columns[c], swap);
                 }
             }
+            place_rows(spec, out.values.data(), nw, b, e, parts[b / grain]);
             progress.advance((e - b) * row_bytes);
         } catch (...) {
             first.record(b);
         }
     }, &progress.cancel);
     first.rethrow(progress);
+    merge_stats(parts, out.positions);
 }
 
 void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress) {

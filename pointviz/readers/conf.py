@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -95,13 +96,15 @@ def read_conf(path: Path, sample, rng) -> PointCloud:
             )
     scans = _read_scans(path, entries)
     parts = []
-    for (scan_path, t, q, _), scan in zip(entries, scans):
+    for (scan_path, t, q, lineno), scan in zip(entries, scans):
+        if scan.finite == 0:
+            raise FileFormatError(f"{path}: line {lineno}: {scan_path}: no finite points")
         rot = quaternion_matrix(q)
-        local = scan.points
-        world = local @ rot + t  # rows: (R^T p)^T = p^T R
-        eye_local = local.mean(axis=0) + [0.0, 0.0, RANGE_SCAN_VIEW_DISTANCE * scan.diagonal]
+        # the scan's points are already placed (p R + t, rows: (R^T p)^T); its viewpoint is
+        # placed from the scan's own frame. NaN rows are dropped below, with a note.
+        eye_local = scan.mean + [0.0, 0.0, RANGE_SCAN_VIEW_DISTANCE * np.linalg.norm(scan.hi - scan.lo)]
         eye = eye_local @ rot + t
-        parts.append((scan_path.name, world, scan.colors, eye))
+        parts.append((scan_path.name, scan.points, scan.colors, eye))
     points = np.concatenate([w for _, w, _, _ in parts])
     sizes = [len(w) for _, w, _, _ in parts]
     colors = None
@@ -119,20 +122,32 @@ def read_conf(path: Path, sample, rng) -> PointCloud:
                        scan_index=scan_index, notes=notes)
 
 
-def _read_scans(path: Path, entries) -> list[PointCloud]:
-    """Every scan of a registration as a PointCloud in its own frame. PLY point scans (the usual
-    case) are read by one core call, in parallel; anything else by its reader, one by one."""
+@dataclass
+class _Scan:
+    """One scan placed in the registration's frame, with its bounds and mean in its own."""
+
+    points: np.ndarray  # (n, 3) float64, placed; non-finite rows kept
+    colors: np.ndarray | None
+    lo: np.ndarray
+    hi: np.ndarray
+    mean: np.ndarray
+    finite: int
+
+
+def _read_scans(path: Path, entries) -> list[_Scan]:
+    """Every scan of a registration, placed. PLY point scans (the usual case) are read and
+    placed by one core call, in parallel; anything else by its reader, then placed here."""
     from .registry import read_file
 
     def named(lineno, exc):
         return FileFormatError(f"{path}: line {lineno}: {exc}")
 
     plans = {}
-    for i, (scan_path, _, _, lineno) in enumerate(entries):
+    for i, (scan_path, t, q, lineno) in enumerate(entries):
         if scan_path.suffix.lower() != ".ply":
             continue
         try:
-            plan = ply.points_plan(scan_path)
+            plan = ply.points_plan(scan_path, affine=(quaternion_matrix(q), t))
         except PointvizError as exc:
             raise named(lineno, exc if str(scan_path) in str(exc) else f"{scan_path}: {exc}") from exc
         if plan is not None:
@@ -148,13 +163,19 @@ def _read_scans(path: Path, entries) -> list[PointCloud]:
                 raise named(entries[i][3], err) from None
         raise
     scans = []
-    for i, (scan_path, _, _, lineno) in enumerate(entries):
+    for i, (scan_path, t, q, lineno) in enumerate(entries):
         try:
             if i in plans:
-                arrays = ply.points_from_table(plans[i], *tables[i])
-                scans.append(point_cloud(scan_path, **arrays))
+                data = tables[i]
+                arrays = ply.points_from_table(plans[i], data)
+                scans.append(_Scan(arrays["points"], arrays["colors"], data.lo, data.hi,
+                                   data.mean, data.finite))
             else:
-                scans.append(read_file(scan_path))
+                cloud = read_file(scan_path)  # finite rows only
+                local = cloud.points
+                scans.append(_Scan(local @ quaternion_matrix(q) + t, cloud.colors,
+                                   local.min(axis=0), local.max(axis=0), local.mean(axis=0),
+                                   len(local)))
         except PointvizError as exc:
             raise named(lineno, exc if str(scan_path) in str(exc) else f"{scan_path}: {exc}") from exc
     return scans

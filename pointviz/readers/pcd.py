@@ -164,7 +164,7 @@ def read_pcd(path: Path, sample, rng) -> PointCloud:
     spec = table.spec(path, offset=h["offset"], encoding=mode, columns=columns, rows=h["points"],
                       wanted=[names.index(n) for n in want])
     try:
-        ((values, _),) = table.read([spec])
+        values = table.read([spec])[0].values
     except table.TruncatedData as exc:
         raise FileFormatError(f"{path}: truncated PCD: {exc}") from None
     except table.MalformedData as exc:

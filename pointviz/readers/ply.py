@@ -294,10 +294,11 @@ _COLOR_SCALE = {"char": 127.0, "int8": 127.0, "uchar": 255.0, "uint8": 255.0,
                 "uint": 4294967295.0, "uint32": 4294967295.0}  # fmt: skip
 
 
-def points_plan(path: Path) -> PointsPlan | None:
+def points_plan(path: Path, affine=None) -> PointsPlan | None:
     """Check a PLY file and plan reading its points in the core.
 
-    Returns None for what the core path does not cover (meshes, vertex elements with lists or
+    ``affine`` ``(m, t)`` places the points as they are read (``p @ m + t``, see
+    :func:`table.spec`). Returns None for what the core path does not cover (meshes, vertex elements with lists or
     after other elements): :func:`read_ply` then uses Open3D after the same checks.
     """
     header = _ply_header(path)
@@ -333,16 +334,17 @@ def points_plan(path: Path) -> PointsPlan | None:
     spec = table.spec(
         path, offset=header["header_bytes"], encoding=header["format"],
         columns=[table.PLY_SCALARS[t] for _, t in vprops], rows=nvert,
-        wanted=[names.index(n) for n in want],
+        wanted=[names.index(n) for n in want], affine=affine,
     )
     return PointsPlan(path, header, spec, want, [types[n] for n in want],
                       sum(c for _, c, _ in others))
 
 
-def points_from_table(plan: PointsPlan, values: np.ndarray, lines_after: int) -> dict:
-    """The arrays of a planned PLY file from its vertex table: ``points`` (n, 3) float64,
-    ``normals`` (n, 3) or None, ``colors`` (n, 3) float in [0, 1] or None."""
+def points_from_table(plan: PointsPlan, data) -> dict:
+    """The arrays of a planned PLY file from its vertex table (a :class:`table.TableData`):
+    ``points`` (n, 3) float64, ``normals`` (n, 3) or None, ``colors`` (n, 3) in [0, 1] or None."""
     path = plan.path
+    values, lines_after = data.values, data.lines_after
     if plan.header["format"] == "ascii" and lines_after < plan.other_rows:
         nvert = len(values)
         raise FileFormatError(
@@ -381,10 +383,10 @@ def read_ply(path: Path, sample, rng) -> PointCloud:
     if plan is None:
         return _load_ply(path, sample, rng)
     try:
-        ((values, after),) = table.read([plan.spec])
+        (data,) = table.read([plan.spec])
     except (table.TruncatedData, table.MalformedData, RuntimeError) as exc:
         raise core_error(path, plan.header["format"], exc) from None
-    return point_cloud(path, **points_from_table(plan, values, after), sample=sample, rng=rng)
+    return point_cloud(path, **points_from_table(plan, data), sample=sample, rng=rng)
 
 
 def _load_ply(path: Path, sample, rng) -> PointCloud:

@@ -6,6 +6,7 @@ them here; several files (the scans of a ``.conf``) are read in parallel by one 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ PCD_SCALARS = {
 
 
 def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: int,
-         wanted: list[int], exact_columns: bool = True, commas: bool = False):
+         wanted: list[int], exact_columns: bool = True, commas: bool = False, affine=None):
     """A ``_core.TableSpec``.
 
     Parameters
@@ -50,6 +51,8 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
     exact_columns, commas : bool
         ASCII: rows must hold exactly ``len(columns)`` values (else at least); ``,`` and ``;``
         separate values too.
+    affine : tuple of ((3, 3), (3,)) float, optional
+        ``(m, t)``: positions ``p`` (rows) are returned as ``p @ m + t``.
     """
     s = _core.TableSpec()
     s.path = str(path)
@@ -60,21 +63,47 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
     s.wanted = [int(w) for w in wanted]
     s.exact_columns = bool(exact_columns)
     s.commas = bool(commas)
+    if affine is not None:
+        m, t = affine
+        s.transform = True
+        s.affine = [float(v) for v in np.asarray(m, dtype=np.float64).reshape(9)] + [
+            float(v) for v in np.asarray(t, dtype=np.float64).reshape(3)]
     return s
 
 
-def read(specs: list, threads: int = 0) -> list[tuple[np.ndarray, int]]:
-    """Read every spec (in parallel when there are several).
+@dataclass
+class TableData:
+    """The rows read for one spec.
 
-    Returns
-    -------
-    list of (values, lines_after)
-        ``values`` (rows, len(wanted)) float64; ``lines_after`` the lines after the rows (ASCII
-        with a row count).
+    Attributes
+    ----------
+    values : (rows, len(wanted)) float64
+    lines_after : int
+        ASCII with a row count: the lines after the rows (the file's other elements).
+    lo, hi, mean : (3,) float64
+        Bounds and mean of the positions (the first three wanted columns) as read, before the
+        spec's affine map, over the rows whose three values are finite (``finite`` of them).
+    """
+
+    values: np.ndarray
+    lines_after: int
+    lo: np.ndarray
+    hi: np.ndarray
+    mean: np.ndarray
+    finite: int
+
+
+def read(specs: list, threads: int = 0) -> list[TableData]:
+    """Read every spec (in parallel when there are several).
 
     Raises
     ------
     TruncatedData, MalformedData
         The first failing spec's error (the caller names the file and the format).
     """
-    return [(values, int(after)) for values, after in _core.read_tables(list(specs), threads)]
+    out = []
+    for d in _core.read_tables(list(specs), threads):
+        n = int(d["finite"])
+        out.append(TableData(d["values"], int(d["lines_after"]), np.array(d["lo"]),
+                             np.array(d["hi"]), np.array(d["sum"]) / max(n, 1), n))
+    return out

@@ -34,7 +34,7 @@ def read_text(path: Path, sample, rng) -> PointCloud:
     spec = table.spec(path, offset=0, encoding="ascii", columns=["f64"] * ncols, rows=-1,
                       wanted=list(range(ncols)), exact_columns=False, commas=True)
     try:
-        ((values, _),) = table.read([spec])
+        values = table.read([spec])[0].values
     except table.MalformedData as exc:
         raise FileFormatError(
             f"{path}: malformed {ext} text: data {exc} (each line needs {ncols} numbers)"

@@ -86,6 +86,22 @@ void test_parse_number() {
     double v = 0;
     CHECK(parse_number("nan", "nan" + 3, v) && std::isnan(v), "nan");
     CHECK(parse_number("-NaN", "-NaN" + 4, v) && std::isnan(v), "-NaN");
+    // the fast path gives from_chars' double on the short decimals scans are written with
+    std::mt19937_64 g(7);
+    const char *formats[] = {"%.6g", "%.7g", "%.9g", "%.15g", "%.3e", "%.8f", "%.0f"};
+    for (int i = 0; i < 20000; ++i) {
+        double x = std::ldexp(double(int64_t(g() >> 11)) / double(1ull << 53), int(g() % 120) - 60);
+        char buf[64];
+        int n = std::snprintf(buf, sizeof buf, formats[i % 7], i % 2 ? x : -x);
+        double fast = 0, oracle = 0;
+        const char *digits = buf[0] == '-' ? buf + 1 : buf;
+        bool took = parse_simple_decimal(digits, buf + n, fast);
+        std::from_chars(digits, buf + n, oracle);
+        CHECK(!took || fast == oracle, "fast path on '%s': %.17g vs %.17g", buf, fast, oracle);
+        double v = 0;
+        CHECK(parse_number(buf, buf + n, v) && v == (buf[0] == '-' ? -oracle : oracle),
+              "parse_number('%s')", buf);
+    }
     // %.17g round trips exactly
     std::mt19937_64 gen(1);
     std::uniform_real_distribution<double> u(-1e6, 1e6);

@@ -4,7 +4,11 @@
 // parallel, with progress and cancellation, and never trusts a count it has not checked.
 #pragma once
 
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstdint>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -33,6 +37,37 @@ struct TableSpec {
     /// extra values are ignored, as XYZ readers do).
     bool exact_columns = true;
     bool commas = false;           ///< ASCII: ',' and ';' separate values too
+    /// When set, the first three wanted columns (a position p, as a row) are returned as
+    /// p M + t, with M the first nine values (row-major 3x3) and t the last three: a scan placed
+    /// in the common frame of a registration as it is read.
+    bool transform = false;
+    std::array<double, 12> affine{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+};
+
+/// Bounds and sum of positions: the first three wanted columns as read (before the affine
+/// map), over the rows where all three are finite.
+struct PositionStats {
+    std::array<double, 3> lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf}, sum{0, 0, 0};
+    uint64_t finite = 0;  ///< rows counted
+    static constexpr double kInf = std::numeric_limits<double>::infinity();
+
+    void add(const double *p) {
+        if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) return;
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], p[k]);
+            hi[k] = std::max(hi[k], p[k]);
+            sum[k] += p[k];
+        }
+        ++finite;
+    }
+    void merge(const PositionStats &o) {
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], o.lo[k]);
+            hi[k] = std::max(hi[k], o.hi[k]);
+            sum[k] += o.sum[k];
+        }
+        finite += o.finite;
+    }
 };
 
 /// The rows read from one TableSpec.
@@ -42,6 +77,9 @@ struct Table {
     /// ASCII with a row count: lines after the rows (a last line without '\n' counts), which
     /// belong to the file's other elements.
     uint64_t lines_after = 0;
+    /// Of the positions (when at least three columns are wanted); sums are merged in row order,
+    /// so they do not depend on the thread count.
+    PositionStats positions;
 };
 
 /// The data ends before the rows the spec asks for.
