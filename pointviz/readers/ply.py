@@ -33,8 +33,10 @@ _PLY_NUMPY = {
     "double": "f8", "float64": "f8",
 }  # fmt: skip
 
-# Largest PLY header we accept before deciding the file is not a PLY file.
+# Largest PLY header we accept before deciding the file is not a PLY file; headers are read in
+# blocks of _PLY_HEADER_BLOCK bytes (a few hundred bytes is usual), not the whole 1 MiB.
 _PLY_MAX_HEADER = 1 << 20
+_PLY_HEADER_BLOCK = 1 << 16
 
 # A binary PLY whose first data bytes are all ASCII number characters is really an ASCII file
 # with a wrong format line. Binary floats almost never consist only of these bytes: 64 such bytes
@@ -55,7 +57,13 @@ def _ply_header(path: Path) -> dict:
         ``(name, type)`` or ``(name, ('list', count_type, item_type))``.
     """
     with open(path, "rb") as fh:
-        head = fh.read(_PLY_MAX_HEADER)
+        head = fh.read(_PLY_HEADER_BLOCK)
+        while (b"end_header" not in head or head.find(b"\n", head.find(b"end_header")) < 0) and \
+                len(head) < _PLY_MAX_HEADER:
+            block = fh.read(min(_PLY_HEADER_BLOCK, _PLY_MAX_HEADER - len(head)))
+            if not block:
+                break
+            head += block
     if not head.startswith(b"ply"):
         raise FileFormatError(f"{path}: not a PLY file (it does not start with 'ply')")
     end = head.find(b"end_header")
