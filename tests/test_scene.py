@@ -73,3 +73,17 @@ def test_extent_is_kept_per_up_direction(blob):
     assert y[2] != z[2]
     assert Scene(ss, up=(0, 0, 1)).ground_point()[2] == pytest.approx(z[2])
     assert Scene(ss).ground_point()[1] == pytest.approx(y[2])
+
+
+def test_a_cloud_scene_scans_its_points_once_across_the_tree_build(blob, monkeypatch):
+    """Scene(cloud): bounds taken before the tree exists (Camera.fit) are reused once the cloud
+    has become a SurfelScene inside render()."""
+    calls = []
+    real = scene_mod.cloud_extent
+    monkeypatch.setattr(scene_mod, "cloud_extent",
+                        lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    scene = Scene(blob)
+    cam = pointviz.Camera.fit(scene, width=16, height=12)
+    pointviz.render(scene, cam, spp=1)
+    pointviz.render(scene, cam, spp=1)
+    assert len(calls) == 1
