@@ -31,8 +31,8 @@ inline std::vector<pointviz::Table> read_tables_released(
 
 /// (rows, columns) float64 numpy array that takes over the table's buffer (no copy).
 inline nb::object table_array(pointviz::Table &t, size_t ncols) {
-    auto *buf = new std::vector<double>(std::move(t.values));
-    nb::capsule owner(buf, [](void *p) noexcept { delete static_cast<std::vector<double> *>(p); });
+    auto *buf = new pointviz::TableValues(std::move(t.values));
+    nb::capsule owner(buf, [](void *p) noexcept { delete static_cast<pointviz::TableValues *>(p); });
     size_t shape[2] = {size_t(t.rows), ncols};
     return nb::cast(nb::ndarray<nb::numpy, double>(buf->empty() ? nullptr : buf->data(), 2, shape,
                                                    owner));

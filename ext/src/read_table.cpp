@@ -4,53 +4,75 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
-#include <cstdio>
 #include <cstring>
 #include <exception>
 #include <memory>
 #include <mutex>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "pointviz/parallel.h"
 
 namespace pointviz {
 namespace {
 
-/// Bytes read from disk per call between cancellation checks (about a millisecond from the page
-/// cache, a few from disk).
-constexpr size_t kReadChunk = size_t(4) << 20;
 /// Rows parsed between cancellation checks and progress updates (a few ms of ASCII parsing).
 constexpr size_t kRowGrain = 16384;
 
-/// Closes a FILE on every path out.
-struct FileCloser {
-    void operator()(std::FILE *f) const { std::fclose(f); }
-};
-
-/// The bytes of `path` from `offset` to its end, or at most `limit` of them.
-std::vector<char> read_from(const std::string &path, uint64_t offset, uint64_t limit,
-                            Progress &progress) {
-    std::unique_ptr<std::FILE, FileCloser> f(std::fopen(path.c_str(), "rb"));
-    if (!f) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
-    if (std::fseek(f.get(), 0, SEEK_END) != 0)
-        throw std::runtime_error("cannot seek in " + path);
-    long end = std::ftell(f.get());
-    if (end < 0) throw std::runtime_error("cannot tell the size of " + path);
-    if (uint64_t(end) < offset)
-        throw TruncatedData("the file ends at byte " + std::to_string(end) +
-                            ", before its data starts at byte " + std::to_string(offset));
-    if (std::fseek(f.get(), long(offset), SEEK_SET) != 0)
-        throw std::runtime_error("cannot seek in " + path);
-    std::vector<char> buf(size_t(std::min(uint64_t(end) - offset, limit)));
-    size_t got = 0;
-    while (got < buf.size()) {
-        progress.check();
-        size_t want = std::min(kReadChunk, buf.size() - got);
-        size_t n = std::fread(buf.data() + got, 1, want, f.get());
-        if (n == 0) throw std::runtime_error("read error in " + path);
-        got += n;
+/// A read-only memory map of a file's bytes [offset, offset + length): the page cache is read in
+/// place, with neither a zero-filled buffer nor a copy. (A file truncated by another process while
+/// it is mapped would fault; files are not expected to change while they load.)
+class MappedBytes {
+  public:
+    MappedBytes(const std::string &path, uint64_t offset, uint64_t limit) {
+        int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd < 0) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
+        struct stat st;
+        if (::fstat(fd, &st) != 0) {
+            ::close(fd);
+            throw std::runtime_error("cannot stat " + path + ": " + std::strerror(errno));
+        }
+        uint64_t end = uint64_t(st.st_size);
+        if (end < offset) {
+            ::close(fd);
+            throw TruncatedData("the file ends at byte " + std::to_string(end) +
+                                ", before its data starts at byte " + std::to_string(offset));
+        }
+        size_ = size_t(std::min(end - offset, limit));
+        if (size_ > 0) {
+            // map from the page holding `offset`
+            const uint64_t page = uint64_t(::sysconf(_SC_PAGESIZE));
+            const uint64_t start = offset / page * page;
+            map_len_ = size_t(offset - start) + size_;
+            map_ = ::mmap(nullptr, map_len_, PROT_READ, MAP_PRIVATE, fd, off_t(start));
+            if (map_ == MAP_FAILED) {
+                map_ = nullptr;
+                ::close(fd);
+                throw std::runtime_error("cannot map " + path + ": " + std::strerror(errno));
+            }
+            ::madvise(map_, map_len_, MADV_SEQUENTIAL | MADV_WILLNEED);
+            data_ = static_cast<const char *>(map_) + (offset - start);
+        }
+        ::close(fd);
     }
-    return buf;
-}
+    ~MappedBytes() {
+        if (map_) ::munmap(map_, map_len_);
+    }
+    MappedBytes(const MappedBytes &) = delete;
+    MappedBytes &operator=(const MappedBytes &) = delete;
+
+    const char *data() const { return data_; }
+    size_t size() const { return size_; }
+
+  private:
+    void *map_ = nullptr;
+    size_t map_len_ = 0;
+    const char *data_ = "";
+    size_t size_ = 0;
+};
 
 std::string row_name(uint64_t row) { return "row " + std::to_string(row); }
 
@@ -149,7 +171,7 @@ void merge_stats(const std::vector<PositionStats> &parts, PositionStats &out) {
     for (const PositionStats &p : parts) out.merge(p);
 }
 
-void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
+void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
                 Progress &progress, const std::vector<int> &slot) {
     const char *data = buf.data();
     const char *end = data + buf.size();
@@ -187,7 +209,7 @@ void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out,
     }
     const size_t nw = spec.wanted.size();
     out.rows = nrows;
-    out.values.assign(size_t(nrows) * nw, 0.0);
+    out.values.resize(size_t(nrows) * nw);
     FirstError first;
     std::vector<PositionStats> parts((size_t(nrows) + kRowGrain - 1) / kRowGrain);
     parallel_for(size_t(nrows), kRowGrain, threads, [&](size_t b, size_t e, int) {
@@ -206,7 +228,7 @@ void read_ascii(const TableSpec &spec, const std::vector<char> &buf, Table &out,
     merge_stats(parts, out.positions);
 }
 
-void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out, int threads,
+void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
                  Progress &progress) {
     std::vector<size_t> col_offset(spec.columns.size());
     size_t row_bytes = 0;
@@ -224,7 +246,7 @@ void read_binary(const TableSpec &spec, const std::vector<char> &buf, Table &out
     const bool swap = spec.encoding == Encoding::BinaryBig;
     const size_t nw = spec.wanted.size();
     out.rows = nrows;
-    out.values.assign(size_t(nrows) * nw, 0.0);
+    out.values.resize(size_t(nrows) * nw);
     FirstError first;
     const size_t grain = kRowGrain * 8;
     std::vector<PositionStats> parts((size_t(nrows) + grain - 1) / grain);
@@ -265,7 +287,8 @@ void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress
         for (Scalar c : spec.columns) row_bytes += scalar_size(c);
         if (uint64_t(spec.rows) <= ~uint64_t(0) / row_bytes) limit = uint64_t(spec.rows) * row_bytes;
     }
-    std::vector<char> buf = read_from(spec.path, spec.offset, limit, progress);
+    MappedBytes buf(spec.path, spec.offset, limit);
+    progress.check();
     if (spec.encoding == Encoding::Ascii)
         read_ascii(spec, buf, out, threads, progress, slot);
     else

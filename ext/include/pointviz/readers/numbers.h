@@ -24,26 +24,31 @@ inline size_t scalar_size(Scalar s) {
     return 0;
 }
 
+/// One T at `p` (unaligned), bytes reversed when `swap`; a fixed-size memcpy compiles to a load.
+template <class T>
+inline double load_scalar(const char *p, bool swap) {
+    T v;
+    if (!swap) {
+        std::memcpy(&v, p, sizeof(T));
+    } else {
+        char b[sizeof(T)];
+        for (size_t i = 0; i < sizeof(T); ++i) b[i] = p[sizeof(T) - 1 - i];
+        std::memcpy(&v, b, sizeof(T));
+    }
+    return double(v);
+}
+
 /// Decodes one scalar at `p` (unaligned), swapping bytes when `swap` (big-endian data).
 inline double decode_scalar(const char *p, Scalar s, bool swap) {
-    unsigned char b[8];
-    size_t n = scalar_size(s);
-    std::memcpy(b, p, n);
-    if (swap)
-        for (size_t i = 0; i < n / 2; ++i) {
-            unsigned char t = b[i];
-            b[i] = b[n - 1 - i];
-            b[n - 1 - i] = t;
-        }
     switch (s) {
-        case Scalar::I8: { int8_t v; std::memcpy(&v, b, 1); return v; }
-        case Scalar::U8: { uint8_t v; std::memcpy(&v, b, 1); return v; }
-        case Scalar::I16: { int16_t v; std::memcpy(&v, b, 2); return v; }
-        case Scalar::U16: { uint16_t v; std::memcpy(&v, b, 2); return v; }
-        case Scalar::I32: { int32_t v; std::memcpy(&v, b, 4); return v; }
-        case Scalar::U32: { uint32_t v; std::memcpy(&v, b, 4); return v; }
-        case Scalar::F32: { float v; std::memcpy(&v, b, 4); return double(v); }
-        case Scalar::F64: { double v; std::memcpy(&v, b, 8); return v; }
+        case Scalar::I8: return load_scalar<int8_t>(p, swap);
+        case Scalar::U8: return load_scalar<uint8_t>(p, swap);
+        case Scalar::I16: return load_scalar<int16_t>(p, swap);
+        case Scalar::U16: return load_scalar<uint16_t>(p, swap);
+        case Scalar::I32: return load_scalar<int32_t>(p, swap);
+        case Scalar::U32: return load_scalar<uint32_t>(p, swap);
+        case Scalar::F32: return load_scalar<float>(p, swap);
+        case Scalar::F64: return load_scalar<double>(p, swap);
     }
     return 0.0;
 }

@@ -9,8 +9,10 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "pointviz/progress.h"
@@ -44,6 +46,28 @@ struct TableSpec {
     std::array<double, 12> affine{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
 };
 
+/// An allocator whose new elements are left uninitialised: the reader writes every value of a
+/// table, so zero-filling it first would be one more pass over memory.
+template <class T>
+struct UninitAllocator : std::allocator<T> {
+    template <class U>
+    struct rebind {
+        using other = UninitAllocator<U>;
+    };
+    UninitAllocator() = default;
+    template <class U>
+    UninitAllocator(const UninitAllocator<U> &) noexcept {}
+    template <class U>
+    void construct(U *) noexcept {}  // default-initialise: nothing for double
+    template <class U, class... Args>
+    void construct(U *p, Args &&...args) {
+        ::new (static_cast<void *>(p)) U(std::forward<Args>(args)...);
+    }
+};
+
+/// The values of a table, rows x columns, row-major.
+using TableValues = std::vector<double, UninitAllocator<double>>;
+
 /// Bounds and sum of positions: the first three wanted columns as read (before the affine
 /// map), over the rows where all three are finite.
 struct PositionStats {
@@ -72,7 +96,7 @@ struct PositionStats {
 
 /// The rows read from one TableSpec.
 struct Table {
-    std::vector<double> values;    ///< rows x wanted.size(), row-major
+    TableValues values;            ///< rows x wanted.size(), row-major
     uint64_t rows = 0;
     /// ASCII with a row count: lines after the rows (a last line without '\n' counts), which
     /// belong to the file's other elements.
