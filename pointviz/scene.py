@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _core
+from .arrays import bounds, dot3
 from .errors import InputError
 
 _Y_UP = (0.0, 1.0, 0.0)
@@ -206,15 +207,10 @@ def cloud_extent(points, radii, up) -> tuple[np.ndarray, np.ndarray, float]:
         :data:`GROUND_OUTLIER_FRACTION` of a cloud with at least
         :data:`GROUND_ROBUST_MIN_POINTS` points.
     """
-    pts = np.asarray(points)
     r = float(np.max(radii)) if radii is not None else 0.0
-    # column by column: reductions over the short axis of an (n, 3) array, and a matrix product
-    # with (3,), are several times slower than these passes over strided columns
-    cols = [pts[:, k] for k in range(3)]
-    lo = np.array([c.min() for c in cols], dtype=np.float64) - r
-    hi = np.array([c.max() for c in cols], dtype=np.float64) + r
-    u = np.asarray(up, dtype=np.float64).reshape(3)
-    h = cols[0] * u[0] + cols[1] * u[1] + cols[2] * u[2]
+    lo, hi = bounds(points)
+    lo, hi = lo - r, hi + r
+    h = dot3(points, up)
     r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
     low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
            else h.min())

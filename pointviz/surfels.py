@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from .arrays import bounds
 from .errors import InputError
 
 #: The paper's traversal variants, as knob settings.
@@ -175,7 +176,8 @@ class SurfelScene:
         elif not (isinstance(bd, (int, np.integer)) and bd >= 0):
             raise InputError(f"box_depth: expected an integer >= 0, 'auto' or 'all', got {bd!r}")
         if origin is None:
-            origin = 0.5 * (points.min(axis=0) + points.max(axis=0))
+            lo, hi = bounds(points)
+            origin = 0.5 * (lo + hi)
         origin = np.asarray(origin, dtype=np.float64).reshape(3)
         colors = getattr(cloud, "colors", None)
         self._tree = _core.SurfelTree(
