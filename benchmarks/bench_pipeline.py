@@ -216,6 +216,10 @@ def print_start_to_png(label: str, med: dict) -> None:
             ("write PNG", med["write"]), ("other (interpreter, CLI, exit)", other)]
     for name, secs in rows:
         print(f"  {name:32s} {secs:7.3f} s  {100 * secs / med['wall']:5.1f} %")
+    rest = med["wall"] - med["normals"] - med["radii"]
+    budget = TARGET_START_TO_PNG * med["anchor"] - rest
+    print(f"  everything but normals and radii: {rest:.2f} s = {rest / med['anchor']:.2f}x the "
+          f"anchor; the {TARGET_START_TO_PNG:g}x target leaves {budget:.2f} s for them")
 
 
 # ---------------------------------------------------------------------------------------------

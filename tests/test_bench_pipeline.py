@@ -35,6 +35,7 @@ def test_generated_scans_lie_on_the_sphere_and_face_their_scanners(tmp_path, fmt
         assert np.dot(view, pts.mean(axis=0)) > 0
 
 
+@pytest.mark.slow
 def test_quick_run_prints_frame_and_loader_tables(capsys):
     assert bp.main(["--quick", "--only", "frame", "--only", "loaders"]) == 0
     out = capsys.readouterr().out
