@@ -177,7 +177,8 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
     const char *end = data + buf.size();
     // Begin/end byte offsets of each row's line.
     std::vector<uint64_t> bounds;
-    if (spec.rows >= 0) bounds.reserve(2 * size_t(spec.rows));
+    if (spec.rows >= 0)  // every row takes at least two bytes: a lying count cannot reserve more
+        bounds.reserve(2 * std::min<size_t>(size_t(spec.rows), buf.size() / 2 + 1));
     const char *p = data;
     size_t since_check = 0;
     while (p < end && (spec.rows < 0 || int64_t(bounds.size() / 2) < spec.rows)) {
