@@ -212,6 +212,7 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
     out.rows = nrows;
     out.values.resize(size_t(nrows) * nw);
     FirstError first;
+    std::atomic<uint64_t> advanced{0};
     std::vector<PositionStats> parts((size_t(nrows) + kRowGrain - 1) / kRowGrain);
     parallel_for(size_t(nrows), kRowGrain, threads, [&](size_t b, size_t e, int) {
         try {
@@ -220,13 +221,16 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
                 parse_row(data + bounds[2 * r], data + bounds[2 * r + 1], spec, slot,
                           out.values.data() + r * nw, r);
             place_rows(spec, out.values.data(), nw, b, e, parts[b / kRowGrain]);
-            progress.advance(bounds[2 * (e - 1) + 1] - bounds[2 * b]);
+            const uint64_t bytes = bounds[2 * (e - 1) + 1] - bounds[2 * b];
+            advanced.fetch_add(bytes, std::memory_order_relaxed);
+            progress.advance(bytes);
         } catch (...) {
             first.record(b);
         }
     }, &progress.cancel);
     first.rethrow(progress);
     merge_stats(parts, out.positions);
+    progress.advance(buf.size() - advanced.load());  // newlines, skipped and trailing lines
 }
 
 void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
@@ -289,6 +293,7 @@ void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress
         if (uint64_t(spec.rows) <= ~uint64_t(0) / row_bytes) limit = uint64_t(spec.rows) * row_bytes;
     }
     MappedBytes buf(spec.path, spec.offset, limit);
+    progress.total.fetch_add(buf.size(), std::memory_order_relaxed);  // units: bytes
     progress.check();
     if (spec.encoding == Encoding::Ascii)
         read_ascii(spec, buf, out, threads, progress, slot);
