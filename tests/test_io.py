@@ -607,3 +607,18 @@ def test_core_reader_gives_the_same_rows_for_any_thread_count(tmp_path, rng):
     np.testing.assert_array_equal(outs[0], pts)  # %.17g round trips exactly
     for out in outs[1:]:
         np.testing.assert_array_equal(out, outs[0])
+
+
+def test_conf_scan_with_nan_rows_drops_them_with_a_note(tmp_path, rng):
+    pts = rng.random((200, 3)).astype(np.float32)
+    pts[[5, 17]] = np.nan
+    (tmp_path / "a.ply").write_bytes(_ply_bytes("binary_little_endian", pts))
+    (tmp_path / "b.ply").write_bytes(_ply_bytes("ascii", pts[20:]))
+    (tmp_path / "r.conf").write_text("bmesh a.ply 1 2 3 0 0 0 1\nbmesh b.ply 0 0 0 0 0 0 1\n")
+    with pytest.warns(UserWarning, match="dropped 2 of 380 points"):
+        cloud = load(tmp_path / "r.conf", estimate=False)
+    keep = np.isfinite(pts).all(axis=1)
+    np.testing.assert_array_equal(cloud.points[:198], pts[keep].astype(np.float64) + [1, 2, 3])
+    np.testing.assert_array_equal(np.bincount(cloud.scan_index), [198, 180])
+    # the viewpoint comes from the finite points only
+    assert np.isfinite(cloud.viewpoints).all()
