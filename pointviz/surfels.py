@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from .arrays import bounds
 from .errors import InputError
 
 #: The paper's traversal variants, as knob settings.
@@ -179,7 +180,8 @@ class SurfelScene:
         elif not (isinstance(bd, (int, np.integer)) and bd >= 0):
             raise InputError(f"box_depth: expected an integer >= 0, 'auto' or 'all', got {bd!r}")
         if origin is None:
-            origin = 0.5 * (points.min(axis=0) + points.max(axis=0))
+            lo, hi = bounds(points)
+            origin = 0.5 * (lo + hi)
         origin = np.asarray(origin, dtype=np.float64).reshape(3)
         colors = getattr(cloud, "colors", None)
         arrays = (points, np.ascontiguousarray(cloud.normals, dtype=np.float32),
@@ -267,6 +269,18 @@ class SurfelScene:
     def tree(self):
         """The core tree object (``pointviz._core.SurfelTree``), for renderers and diagnostics."""
         return self._tree
+
+    def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds of the disks and the ground level along ``up`` (see
+        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        that a frame costs nothing that grows with the cloud."""
+        from .scene import cloud_extent
+
+        key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
+        cache = self.__dict__.setdefault("_extents", {})
+        if key not in cache:
+            cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+        return cache[key]
 
     def trace_options(self, lod_pixels: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold."""

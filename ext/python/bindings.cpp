@@ -22,6 +22,7 @@
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
+#include "readers_bindings.h"
 
 namespace nanobind::detail {
 /// Vec3 <-> any sequence of three numbers (tuple on the way out).
@@ -508,4 +509,6 @@ NB_MODULE(_core, m) {
              "threads"_a = 0, "stats"_a = true)
         .def("occluded", &occluded_any<KdTree>, "rays"_a, "t_max"_a, "options"_a,
              "t_min"_a = 0.0, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true);
+
+    pointviz_bindings::bind_readers(m);
 }
