@@ -53,6 +53,7 @@ struct Light {
     Vec3 position{0.f, 0.f, 0.f};
     float radius = 0.f;
     Vec3 edge_u{0.f, 0.f, 0.f}, edge_v{0.f, 0.f, 0.f};
+    bool cast_shadows = true;       ///< false: no shadow rays (a fill light)
 };
 
 /// Sky seen by misses and the ambient term: a gradient from horizon to zenith.
@@ -64,6 +65,14 @@ struct Sky {
     float ambient = 0.25f;          ///< strength of the sky's ambient light on surfaces
     bool background_is_sky = true;  ///< primary misses show the sky, else `background`
     Vec3 background{1.f, 1.f, 1.f};
+    /// Sky visibility (ambient occlusion): the ambient term is scaled by the fraction of
+    /// cosine-weighted rays of this length that leave the surface without meeting an object
+    /// (the ground plane does not occlude: `below` already stands for it). 0: no occlusion.
+    float occlusion_distance = 0.f;
+    /// Primary hits of the ground farther than this from `ground_point` fade into the
+    /// background colour, reaching it at twice the distance: a studio backdrop with no
+    /// horizon line. 0: no fade.
+    float ground_fade = 0.f;
 };
 
 /// Self-intersection policy for rays leaving a surface (shadow and reflection rays). Surfels
@@ -87,6 +96,7 @@ struct RenderSettings {
     uint64_t seed = 0;
     int threads = 0;
     int tile = 16;               ///< tile edge in pixels
+    int occlusion_rays = 2;      ///< sky-visibility rays per camera sample (1 on reflections)
     OffsetPolicy offsets;
 };
 
@@ -96,6 +106,11 @@ struct FrameBuffers {
     std::vector<float> depth;    ///< (h, w) mean distance over samples that hit; inf if none
     std::vector<float> normal;   ///< (h, w, 3) mean shading normal of the hits
     std::vector<float> alpha;    ///< (h, w) fraction of samples that hit geometry
+    /// (h, w, 3) base colour seen by the samples, in [0, 1]: the first hit's diffuse albedo,
+    /// followed through mirror reflections (weighted as the colour is) and the background on
+    /// misses: the denoiser's guide, where edges the tracer resolved stay sharp.
+    std::vector<float> albedo;
+    std::vector<float> object_alpha;   ///< (h, w) fraction of samples that hit an object (not the ground)
 };
 
 /// Counters of one render.
