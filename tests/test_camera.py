@@ -164,7 +164,9 @@ def test_fit_frames_cloud_and_sphere_touches_margin(rng, width, height):
     pts = rng.normal(size=(2000, 3)) * [5.0, 1.0, 2.0] + [100.0, -20.0, 3.0]
     cloud = SimpleNamespace(points=pts)
     margin = 1.1
-    cam = Camera.fit(cloud, fov_deg=35.0, width=width, height=height, margin=margin, outliers=0.0)
+    # an explicit direction frames the bounding sphere
+    cam = Camera.fit(cloud, direction=(0.0, -0.3, -1.0), fov_deg=35.0, width=width,
+                     height=height, margin=margin, outliers=0.0)
     centre, radius = bounding_sphere(pts)
     np.testing.assert_allclose(cam.target, centre)
     pixels, depth = cam.project(pts)
