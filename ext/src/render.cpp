@@ -79,6 +79,7 @@ struct PathRay {
     Vec3 weight;       ///< throughput, including 1/spp
     uint32_t pixel;    ///< index within the tile
     uint32_t sample;
+    bool albedo = true;   ///< still adds to the albedo guide (camera rays and sharp mirror paths)
 };
 
 /// A shadow (or sky-visibility) ray and what it adds if nothing blocks it.
@@ -215,7 +216,7 @@ private:
             if (nh.object == -1) {
                 Vec3 bg = (bounce == 0 && !sky_model.background_is_sky) ? sky_model.background : sky(r.d);
                 color_[pr.pixel] += pr.weight * bg;
-                albedo_[pr.pixel] += pr.weight * clamp01(bg);
+                if (pr.albedo) albedo_[pr.pixel] += pr.weight * clamp01(bg);
                 continue;
             }
             const SurfaceHit &h = nh.hit;
@@ -255,8 +256,12 @@ private:
             }
             const float keep = 1.f - m.mirror;
             const bool reflects = m.mirror > 0.f && bounce < set_.reflections;
-            // the denoiser's albedo follows mirror paths as the colour does
-            albedo_[pr.pixel] += weight * clamp01(albedo) * (reflects ? keep : 1.f);
+            // The denoiser's albedo follows sharp mirror paths as the colour does, so that what
+            // a mirror shows stays sharp; a glossy lobe's samples would make it noisy, so a
+            // glossy surface stands for what it reflects with its own colour.
+            const bool follow = reflects && m.roughness == 0.f;
+            if (pr.albedo)
+                albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
             const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
@@ -349,6 +354,7 @@ private:
                 nr.weight = weight * m.mirror;
                 nr.pixel = pr.pixel;
                 nr.sample = pr.sample;
+                nr.albedo = pr.albedo && follow;
                 next_.push_back(nr);
             }
         }

@@ -107,8 +107,9 @@ struct FrameBuffers {
     std::vector<float> normal;   ///< (h, w, 3) mean shading normal of the hits
     std::vector<float> alpha;    ///< (h, w) fraction of samples that hit geometry
     /// (h, w, 3) base colour seen by the samples, in [0, 1]: the first hit's diffuse albedo,
-    /// followed through mirror reflections (weighted as the colour is) and the background on
-    /// misses: the denoiser's guide, where edges the tracer resolved stay sharp.
+    /// followed through sharp mirror reflections (weighted as the colour is; a glossy surface
+    /// counts with its own colour) and the background on misses: the denoiser's guide, where
+    /// edges the tracer resolved stay sharp.
     std::vector<float> albedo;
     std::vector<float> object_alpha;   ///< (h, w) fraction of samples that hit an object (not the ground)
 };
