@@ -113,7 +113,7 @@ def _check_int(value, name, lo, hi):
 
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise: bool = False) -> Frame:
+           cancel=None, ground=None, look=None, denoise: bool | str = False) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -142,10 +142,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     look : {"auto", "studio", "outdoor", "flat"} or Look, optional
         Lights, sky occlusion, backdrop and exposure (see :class:`pointviz.scene.Scene`);
         default: the scene's, "auto" for a PointCloud.
-    denoise : bool
+    denoise : bool or {"high", "balanced", "fast"}
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
-        buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); the
-        tracer's colour stays in ``frame.noisy_color``.
+        buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
+        "high" quality. The tracer's colour stays in ``frame.noisy_color``.
 
     Returns
     -------
@@ -155,9 +155,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
 
     if camera is None or not hasattr(camera, "pixel_angle"):
         raise InputError("camera: expected a pointviz.Camera")
-    if denoise:
-        from .denoise import check_available
+    from .denoise import check_available, denoise_quality
 
+    quality = denoise_quality(denoise)
+    if quality is not None:
         check_available()  # before the expensive part
     kw = {} if ground is None else {"ground": ground}
     if look is not None:
@@ -205,13 +206,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
                          "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads,
-                         "look": scene.look.name, "denoise": bool(denoise)}
+                         "look": scene.look.name, "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])
-    if denoise:
+    if quality is not None:
         from .denoise import denoise_frame
 
-        denoise_frame(frame)
+        denoise_frame(frame, quality)
     if scene.look.auto_exposure:
         from .images import auto_exposure
 
