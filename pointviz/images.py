@@ -140,7 +140,10 @@ def auto_exposure(color: np.ndarray, object_alpha: np.ndarray | None = None) -> 
     float
         In EXPOSURE_RANGE; 1 for an all-black frame.
     """
-    lum = np.asarray(color, dtype=np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+    # elementwise, not a matrix product: BLAS may sum in a thread-dependent order, and the
+    # exposure must be the same in every process (distributed frames are byte-identical)
+    c = np.asarray(color, dtype=np.float64)
+    lum = 0.2126 * c[..., 0] + 0.7152 * c[..., 1] + 0.0722 * c[..., 2]
     if object_alpha is not None:
         mask = np.asarray(object_alpha) >= EXPOSURE_COVERAGE
         if mask.any():
