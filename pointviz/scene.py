@@ -110,7 +110,7 @@ class Material:
 
 #: Ground presets by name (the CLI's ``--ground``).
 GROUND_MATERIALS = {
-    "matte": Material(color=(0.45, 0.45, 0.44), specular=0.02, use_point_colors=False),
+    "matte": Material(color=(0.35, 0.35, 0.34), specular=0.02, use_point_colors=False),
     "mirror": Material(color=(0.6, 0.6, 0.62), specular=0.0, mirror=0.6, use_point_colors=False),
     "glossy": Material(color=(0.7, 0.7, 0.7), specular=0.2, mirror=0.3, roughness=0.05,
                        use_point_colors=False),
@@ -245,7 +245,7 @@ class Look:
 LOOKS = {
     # a soft key of 12 degrees' angular size, a fill, strong sky light shaped by occlusion,
     # on a plain backdrop
-    "studio": Look("studio", ambient=0.4, occlusion=0.2, key=1.2, key_angle_deg=6.0,
+    "studio": Look("studio", ambient=0.3, occlusion=0.2, key=1.4, key_angle_deg=6.0,
                    key_elevation=0.9, fill=0.2, background=None,
                    sky={"zenith": (0.95, 0.96, 1.0), "horizon": (0.9, 0.9, 0.9),
                         "below": (0.3, 0.29, 0.28)},
@@ -262,6 +262,9 @@ LOOKS = {
                       "below": (1.0, 1.0, 1.0)},
                  backdrop=False, ground="none", auto_exposure=False),
 }
+#: Comparisons (surfels against meshes) render every backend with one fixed exposure: an
+#: exposure keyed per frame would differ between methods and enter their image errors.
+COMPARE_LOOK = replace(LOOKS["studio"], auto_exposure=False)
 #: Where a backdrop's ground starts fading into the background (bounding radii from the centre);
 #: it reaches the background at twice this.
 BACKDROP_FADE = 1.5
