@@ -115,9 +115,9 @@ def _save_exr(p: Path, color: np.ndarray, overwrite: bool) -> Path:
 
 
 #: Automatic exposure: the mean luminance of the lit objects' pixels is brought to this linear
-#: value before tone mapping (ACES maps it to about 0.65 in sRGB: a white statue keeps its
+#: value before tone mapping (ACES maps it to about 0.63 in sRGB: a white statue keeps its
 #: highlights, a dark terrain is not black).
-EXPOSURE_KEY = 0.3
+EXPOSURE_KEY = 0.24
 #: Bounds of the automatic exposure (a frame of black or blinding objects stays a frame of them).
 EXPOSURE_RANGE = (1 / 8, 8.0)
 #: Pixels whose samples hit objects at least this often count as the objects' pixels.
