@@ -156,3 +156,14 @@ def test_look_from_the_data_and_bad_names(rng):
         Scene([sphere(2000)], look="noir")
     with pytest.raises(InputError, match="look"):
         pointviz.render(sphere(2000), Camera.fit(sphere(2000), width=8, height=8), look="noir")
+
+
+def test_a_scene_sent_to_workers_keeps_its_look():
+    import pickle
+
+    from pointviz.distributed import scene_spec
+
+    spec = pickle.loads(pickle.dumps(scene_spec(Scene([sphere(2000)], look="flat"))))
+    rebuilt, built = spec.scene()
+    assert built and rebuilt.look == LOOKS["flat"]
+    assert scene_spec(Scene([sphere(2000)], look="studio")).key != spec.key
