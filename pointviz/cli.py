@@ -8,6 +8,7 @@ import importlib
 import sys
 
 from .errors import CancelledError, PointvizError
+from .interrupt import CancelToken, cancel_scope, sigint_cancels
 
 #: Subcommands, in the order ``pointviz --help`` lists them.
 COMMANDS = ("render", "view", "compare", "path", "info")
@@ -46,23 +47,25 @@ def _version() -> str:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args.run(args) or 0)
-    except KeyboardInterrupt:
-        print("pointviz: interrupted", file=sys.stderr)
-        return 130
-    except CancelledError as exc:
-        print(f"pointviz: {exc}", file=sys.stderr)
-        return 130
-    except (PointvizError, FileExistsError, FileNotFoundError, PermissionError,
-            IsADirectoryError, MemoryError) as exc:
-        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+    """Run one command. Ctrl-C (SIGINT) only sets a cancel token (:mod:`pointviz.interrupt`);
+    the work stops at its next check, outputs in progress are discarded, and the exit status is
+    130 with the single line ``pointviz: interrupted``."""
+    token = CancelToken()
+    # Run as a program (argv None), the handler stays after the run: a Ctrl-C between the end of
+    # the command and the end of the process must not become a traceback.
+    with sigint_cancels(token, restore=argv is not None), cancel_scope(token):
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            status = int(args.run(args) or 0)
+            token.check()  # interrupted after the last check: the run did not end normally
+            return status
+        except (CancelledError, KeyboardInterrupt):
+            print("pointviz: interrupted", file=sys.stderr)
+            return 130
+        except (PointvizError, OSError, MemoryError) as exc:
+            print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
 
 
 def _one_line(exc: BaseException) -> str:

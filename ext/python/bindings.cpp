@@ -20,6 +20,7 @@
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
+#include "run_progress.h"
 
 namespace nanobind::detail {
 /// Vec3 <-> any sequence of three numbers (tuple on the way out).
@@ -100,10 +101,17 @@ nb::dict stats_dict(const BatchStats &s) {
     return d;
 }
 
+/// `poll` as given or, for None, pointviz.interrupt.poll (the ambient cancel token): every long
+/// call honours the CLI's Ctrl-C without each caller passing a token down.
+nb::object poll_or_ambient(nb::object poll) {
+    if (!poll.is_none()) return poll;
+    return nb::module_::import_("pointviz.interrupt").attr("poll");
+}
+
 std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> normals,
                                       CArray<float> radii, std::optional<CArray<float>> colors,
                                       std::array<double, 3> origin, uint32_t leaf_size,
-                                      uint32_t box_depth, int threads) {
+                                      uint32_t box_depth, int threads, nb::object poll) {
     size_t n = points.shape(0);
     check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
     check_rows("normals", normals.ndim(), normals.shape(0), normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
@@ -114,8 +122,12 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
         in.colors = colors->data();
     }
     BuildOptions opt{leaf_size, box_depth, threads};
-    nb::gil_scoped_release release;
-    return std::make_unique<SurfelTree>(in, origin.data(), opt);
+    Progress progress;
+    return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &p) {
+        auto tree = std::make_unique<SurfelTree>(in, origin.data(), opt);
+        p.check();  // the build does not poll yet: a cancel during it is honoured at its end
+        return tree;
+    });
 }
 
 template <class T>
@@ -169,72 +181,33 @@ struct PyRenderScene {
     std::vector<PyGeometry *> callbacks;
 };
 
-/// Runs the renderer on a worker thread while this thread, holding the GIL only briefly,
-/// reports progress and watches for cancellation (the poll callback returning False, an
-/// exception in it, or Ctrl-C).
+/// Renders on a worker thread (run_with_progress): `poll(tiles_done, tiles_total)` reports
+/// progress and returns False to cancel. A cancelled render raises pointviz.CancelledError.
 nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSettings &set,
-                      nb::object poll) {
+                      nb::object poll, int nice) {
     auto fb = std::make_unique<FrameBuffers>();
     RenderStats st;
-    std::atomic<bool> cancel{false}, done{false};
-    for (PyGeometry *g : ps.callbacks) g->set_cancel(&cancel);
-    std::exception_ptr err;
-    bool completed = false, interrupted = false;
-    std::string poll_error;
+    Progress progress;
     auto t0 = std::chrono::steady_clock::now();
-    {
-        nb::gil_scoped_release release;
-        std::thread worker([&] {
-            try {
-                completed = render(ps.scene, cam, set, *fb, st, cancel);
-            } catch (...) {
-                err = std::current_exception();
-                cancel = true;
-            }
-            done = true;
-        });
-        uint64_t reported = ~0ull;
-        while (!done.load()) {
-            std::this_thread::sleep_for(std::chrono::milliseconds(20));
-            uint64_t now = st.tiles_done.load();
-            nb::gil_scoped_acquire gil;
-            if (PyErr_CheckSignals() != 0) {
-                PyErr_Clear();
-                interrupted = true;
-                cancel = true;
-            }
-            if (!poll.is_none() && now != reported && !cancel.load()) {
-                reported = now;
-                try {
-                    nb::object r = poll(now, st.tiles_total);
-                    if (!r.is_none() && !nb::cast<bool>(r)) cancel = true;
-                } catch (const std::exception &e) {
-                    poll_error = e.what();
-                    cancel = true;
-                }
-            }
-        }
-        worker.join();
-    }
-    for (PyGeometry *g : ps.callbacks) g->set_cancel(nullptr);
-    if (err) std::rethrow_exception(err);
-    for (PyGeometry *g : ps.callbacks)
-        if (!g->error().empty()) throw std::runtime_error("geometry callback failed: " + g->error());
-    if (!poll_error.empty()) throw std::runtime_error("progress callback failed: " + poll_error);
-    if (interrupted) {
-        PyErr_SetNone(PyExc_KeyboardInterrupt);
-        throw nb::python_error();
-    }
+    for (PyGeometry *g : ps.callbacks) g->set_cancel(&progress.cancel);
+    struct Detach {  // the geometries outlive this call: drop the pointer to `progress`
+        PyRenderScene &ps;
+        ~Detach() { for (PyGeometry *g : ps.callbacks) g->set_cancel(nullptr); }
+    } detach{ps};
+    run_with_progress(progress, poll, [&](Progress &p) {
+        if (render(ps.scene, cam, set, *fb, st, p)) return;
+        for (PyGeometry *g : ps.callbacks)  // a failed callback cancels the render: say why
+            if (!g->error().empty()) throw std::runtime_error("geometry callback failed: " + g->error());
+        throw Cancelled();
+    }, RunOptions{nice});
     double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     nb::dict d;
-    d["completed"] = completed && !cancel.load();
     d["seconds"] = secs;
     d["primary_rays"] = st.primary.load();
     d["shadow_rays"] = st.shadow.load();
     d["reflection_rays"] = st.reflection.load();
     d["tiles_done"] = st.tiles_done.load();
     d["tiles_total"] = st.tiles_total;
-    if (!d["completed"].equal(nb::bool_(true))) return nb::make_tuple(nb::none(), d);
     size_t h = size_t(cam.height), w = size_t(cam.width);
     float *c, *dep, *nn, *al;
     auto ac = new_array<float>({h, w, 3}, &c);
@@ -254,6 +227,16 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
 
 NB_MODULE(_core, m) {
     m.doc() = "pointviz C++ core: surfel hierarchy, traversal and rendering";
+
+    // pointviz::Cancelled (a core call stopped by its Progress) -> pointviz.CancelledError.
+    nb::register_exception_translator([](const std::exception_ptr &p, void *) {
+        try {
+            std::rethrow_exception(p);
+        } catch (const Cancelled &e) {
+            nb::object cls = nb::module_::import_("pointviz.errors").attr("CancelledError");
+            PyErr_SetString(cls.ptr(), e.what());
+        }
+    });
 
     nb::enum_<Interpolation>(m, "Interpolation")
         .value("none", Interpolation::None)
@@ -369,11 +352,13 @@ NB_MODULE(_core, m) {
                      [](PyRenderScene &s, float v) { s.scene.scale = v; })
         .def_prop_ro("n_objects", [](const PyRenderScene &s) { return s.scene.objects.size(); });
 
-    m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none());
+    m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none(),
+          "nice"_a = 0);
 
     nb::class_<SurfelTree>(m, "SurfelTree")
         .def(nb::new_(&make_tree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),
-             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0)
+             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0,
+             "poll"_a.none() = nb::none())
         .def_prop_ro("memory_bytes", &SurfelTree::memory_bytes)
         .def_prop_ro("build_seconds", &SurfelTree::build_seconds)
         .def_prop_ro("depth", &SurfelTree::depth)

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
+from ..interrupt import stage
 
 
 def add_input_options(p) -> None:
@@ -71,10 +72,13 @@ def parse_lights(specs):
 
 def make_scene_and_camera(args):
     """Scene and camera from the common options."""
+    from .. import rendering  # noqa: F401 - the core and numpy, before the first stage
     from ..camera import Camera
     from ..scene import Scene
 
+    stage("imported")
     loaded, demo_camera = load_input(args)
+    stage("loaded")
     lights = parse_lights(args.light)
     kw = {}
     if args.interpolation:
@@ -100,7 +104,21 @@ def make_scene_and_camera(args):
         w = args.width or int(round(camera.width * (args.height / camera.height)))
         h = args.height or int(round(camera.height * (args.width / camera.width)))
         camera = camera.with_size(w, h)
+    prepare_scene(scene)
     return scene, camera
+
+
+def prepare_scene(scene) -> None:
+    """Estimate missing normals and radii, then build every surfel tree, now: each step ends at
+    a named stage (:func:`pointviz.interrupt.stage`), where Ctrl-C takes effect."""
+    for obj in scene.objects:
+        cloud = getattr(obj.geometry, "cloud", obj.geometry)
+        if hasattr(cloud, "points"):
+            _ = cloud.normals, cloud.radii
+    stage("normals")
+    for i in range(len(scene.objects)):
+        scene.surfel_scene(i)
+    stage("built")
 
 
 def render_kwargs(args) -> dict:
