@@ -5,10 +5,20 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from .errors import CancelledError, PointvizError
 from .interrupt import CancelToken, cancel_scope, sigint_cancels
+
+if "__mp_main__" in sys.modules and hasattr(signal, "SIGINT"):
+    # A process spawned by the CLI (the local Dask cluster's workers start by re-importing the
+    # parent's main module: this one, or the ``pointviz`` script that imports it). Ctrl-C
+    # reaches the whole process group; the CLI process handles it (cancels the frames, closes
+    # the cluster), so the workers ignore it instead of each printing a KeyboardInterrupt
+    # traceback. (Blocking SIGINT while the cluster starts does not reach them: the mask is
+    # reset in the spawned process.)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 #: Subcommands, in the order ``pointviz --help`` lists them.
 COMMANDS = ("render", "view", "compare", "path", "info")
