@@ -171,11 +171,9 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         if done and not first_tile[0]:
             first_tile[0] = True
             stage("first_tile")
-        if is_cancelled():
-            return False
-        if progress is None or not total:  # total 0: the core has not started counting
-            return True
-        return progress(int(done), int(total)) is not False
+        if progress is not None and total and progress(int(done), int(total)) is False:
+            return False  # (total 0: the core has not started counting)
+        return not is_cancelled()  # after the report: a cancel it caused counts now
 
     try:
         bufs, stats = _core.render(rs, camera_model(camera, origin), settings, poll,

@@ -20,6 +20,10 @@ from ..errors import CancelledError
 PROGRESS_INTERVAL_S = 0.2
 #: How long :meth:`RenderWorker.shutdown` waits for the thread by default, seconds.
 SHUTDOWN_TIMEOUT_S = 10.0
+#: Trace at a lower CPU priority (``render(background=True)``): the GUI thread, at normal
+#: priority, then gets a core as soon as it has work, even while the tracer uses every core
+#: and other processes keep the machine busy (benchmarks/bench_viewer.py measures it).
+RENDER_IN_BACKGROUND = True
 
 
 @dataclass
@@ -143,15 +147,15 @@ class RenderWorker:
             scene = render_scene(job.scene, job.settings)
             if cancel.is_set():
                 raise CancelledError("render cancelled")
-            frame = render_fn(scene, job.camera, progress=progress, cancel=cancel,
-                              **job.settings.render_kwargs())
+            kwargs = dict(job.settings.render_kwargs(), background=RENDER_IN_BACKGROUND)
+            frame = render_fn(scene, job.camera, progress=progress, cancel=cancel, **kwargs)
             result = RenderResult(frame, 0.0)
             if job.compare:
                 mesh_scene, result.mesh_note = mesh_scene_of(scene)
                 if cancel.is_set():
                     raise CancelledError("render cancelled")
                 result.mesh_frame = render_fn(mesh_scene, job.camera, progress=progress,
-                                              cancel=cancel, **job.settings.render_kwargs())
+                                              cancel=cancel, **kwargs)
         except BaseException as exc:  # noqa: BLE001 - every failure goes back to the GUI
             self._on_error(job.job_id, exc)
             return

@@ -355,7 +355,7 @@ def test_cli_bad_inputs_print_one_line(tmp_path):
     problems = []
     for (name, _), (code, _out, err) in zip(CLI_CASES, results):
         lines = err.strip().splitlines()
-        if code == 0 or "Traceback" in err or len(lines) != 1 or "error" not in err:
+        if code != 2 or "Traceback" in err or len(lines) != 1 or "error" not in err:
             problems.append(f"{name}: exit {code}, stderr {err.strip()[-300:]!r}")
     assert not problems, "\n".join(problems)
     assert (tmp_path / "exists.png").read_bytes() == b"precious"
