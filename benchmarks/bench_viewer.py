@@ -37,9 +37,11 @@ CALL_SPACING_S = 0.05
 LOAD_PROCESSES = 2
 #: The target: a GUI call answered within this many seconds during any render.
 TARGET_S = 0.100
-#: Variants: (name, render at lower priority, tracer threads: 0 = all cores, -1 = all but one).
+#: Variants: (name, render at lower priority, tracer threads: 0 = all cores, -1 = all but one,
+#: None = no render at all: the anchor, what the GUI costs by itself on this machine).
 VARIANTS = (("normal, all cores", False, 0), ("nice, all cores", True, 0),
-            ("normal, cores-1", False, -1), ("nice, cores-1", True, -1))
+            ("normal, cores-1", False, -1), ("nice, cores-1", True, -1),
+            ("no render (anchor)", True, None))
 
 DRIVER = """
 import json, sys, threading, time, traceback
@@ -53,15 +55,16 @@ res = {{}}
 def drive(v):
     try:
         v.call(lambda: None)                           # the loop runs
-        v.call(v._on_render)
-        deadline = time.monotonic() + 300
-        while v.call(lambda: v.progress.value) <= 0:   # first progress report shown
-            assert time.monotonic() < deadline, "no progress report"
+        if {render}:
+            v.call(v._on_render)
+            deadline = time.monotonic() + 300
+            while v.call(lambda: v.progress.value) <= 0:   # first progress report shown
+                assert time.monotonic() < deadline, "no progress report"
         lat = []
         for _ in range({calls}):
             t = time.perf_counter(); v.call(lambda: None); lat.append(time.perf_counter() - t)
             time.sleep({spacing})
-        res["running"] = v.worker.running
+        res["running"] = v.worker.running or not {render}
         res["latency_s"] = lat
     except BaseException:
         res["error"] = traceback.format_exc()
@@ -87,9 +90,10 @@ cloud = sphere(200000, color=(0.8, 0.35, 0.2))
 
 def run_variant(background: bool, threads: int, load_cloud: str) -> dict:
     n = os.cpu_count() or 1
-    t = None if threads == 0 else max(1, n - 1)
+    t = None if not threads else max(1, n - 1)
     script = DRIVER.format(background=background, load_cloud=textwrap.dedent(load_cloud),
-                           calls=CALLS, spacing=CALL_SPACING_S, threads=t)
+                           calls=CALLS, spacing=CALL_SPACING_S, threads=t,
+                           render=threads is not None)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=900, check=False)
     lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]

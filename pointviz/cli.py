@@ -11,13 +11,22 @@ import sys
 from .errors import CancelledError, PointvizError
 from .interrupt import CancelToken, cancel_scope, sigint_cancels
 
-if "__mp_main__" in sys.modules and hasattr(signal, "SIGINT"):
-    # A process spawned by the CLI (the local Dask cluster's workers start by re-importing the
-    # parent's main module: this one, or the ``pointviz`` script that imports it). Ctrl-C
-    # reaches the whole process group; the CLI process handles it (cancels the frames, closes
-    # the cluster), so the workers ignore it instead of each printing a KeyboardInterrupt
-    # traceback. (Blocking SIGINT while the cluster starts does not reach them: the mask is
-    # reset in the spawned process.)
+
+def _spawned_by_the_cli() -> bool:
+    """Whether this process is a child that multiprocessing spawned from the CLI: the local Dask
+    cluster's workers start by re-importing the parent's main module (this one, or the
+    ``pointviz`` script that imports it) under the name ``__mp_main__``, after naming the
+    process (the parent's process is always "MainProcess")."""
+    mp = sys.modules.get("multiprocessing")
+    return "__mp_main__" in sys.modules and mp is not None and (
+        mp.current_process().name != "MainProcess")
+
+
+if _spawned_by_the_cli():
+    # Ctrl-C reaches the whole process group; the CLI process handles it (cancels the frames,
+    # closes the cluster), so its workers ignore it instead of each printing a KeyboardInterrupt
+    # traceback. (Blocking SIGINT while the cluster starts does not reach them: the signal mask
+    # is reset in the spawned process.)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 #: Subcommands, in the order ``pointviz --help`` lists them.

@@ -70,8 +70,10 @@ def parse_lights(specs):
     return lights
 
 
-def make_scene_and_camera(args):
-    """Scene and camera from the common options."""
+def make_scene_and_camera(args, prepare: bool = True):
+    """Scene and camera from the common options; with ``prepare``, normals, radii and trees are
+    made now (:func:`prepare_scene`), else on first use (the viewer: on its worker thread, after
+    the window is up)."""
     from .. import rendering  # noqa: F401 - the core and numpy, before the first stage
     from ..camera import Camera
     from ..scene import Scene
@@ -104,7 +106,8 @@ def make_scene_and_camera(args):
         w = args.width or int(round(camera.width * (args.height / camera.height)))
         h = args.height or int(round(camera.height * (args.width / camera.width)))
         camera = camera.with_size(w, h)
-    prepare_scene(scene)
+    if prepare:
+        prepare_scene(scene)
     return scene, camera
 
 

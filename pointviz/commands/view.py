@@ -44,7 +44,7 @@ def run(args) -> int:
     from ..viewer import view
     from ..viewer.model import DEFAULT_PREVIEW_MAX_POINTS
 
-    scene, camera = make_scene_and_camera(args)
+    scene, camera = make_scene_and_camera(args, prepare=False)
     overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
                  "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
                  "color_mode": args.color_by, "ground": None,  # the scene already has --ground
