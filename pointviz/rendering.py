@@ -101,6 +101,21 @@ def _check_int(value, name, lo, hi):
     return int(value)
 
 
+def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
+                         threads: int | None = None, lod_pixels: float = 1.0, **_ignored):
+    """The numeric options of :func:`render`, checked (InputError naming the bad one) and
+    normalised: ``(spp, reflections, seed, threads, lod_pixels)``. Callers with expensive work
+    before the render (the CLI: trees) check first."""
+    spp = _check_int(spp, "spp", 1, 4096)
+    reflections = _check_int(reflections, "reflections", 0, 16)
+    seed = _check_int(seed, "seed", 0, 2**63 - 1)
+    if threads is not None:
+        threads = _check_int(threads, "threads", 1, 1024)
+    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
+        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
+    return spp, reflections, seed, threads, float(lod_pixels)
+
+
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
            cancel=None, ground=None, background: bool = False) -> Frame:
@@ -146,13 +161,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     scene = as_scene(scene_or_cloud, **kw)
     if ground is not None and isinstance(scene_or_cloud, Scene):
         scene = scene.with_ground(ground)
-    spp = _check_int(spp, "spp", 1, 4096)
-    reflections = _check_int(reflections, "reflections", 0, 16)
-    seed = _check_int(seed, "seed", 0, 2**63 - 1)
-    if threads is not None:
-        threads = _check_int(threads, "threads", 1, 1024)
-    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
+    spp, reflections, seed, threads, lod_pixels = check_render_options(
+        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels)
 
     rs, origin = scene.to_core(camera, lod_pixels)
     settings = _core.RenderSettings()

@@ -9,6 +9,8 @@
 #include <nanobind/stl/unique_ptr.h>
 
 #include <array>
+#include <cstdint>
+#include <cstring>
 #include <optional>
 
 #include <memory>
@@ -73,6 +75,17 @@ nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape, T **dat
     return nb::ndarray<nb::numpy, T>(buf, shape.size(), shape.begin(), owner);
 }
 
+/// The array's data, or (when it is misaligned for T) an aligned copy of it in `copy`. Arrays
+/// unpickled from out-of-band buffers (a Dask worker's scene) can sit at any byte offset, and
+/// reading a misaligned double is undefined behaviour (UBSan flags it).
+template <class T>
+const T *aligned_data(const T *data, size_t count, std::vector<T> &copy) {
+    if (reinterpret_cast<std::uintptr_t>(data) % alignof(T) == 0) return data;
+    copy.resize(count);
+    std::memcpy(copy.data(), data, count * sizeof(T));
+    return copy.data();
+}
+
 void check_rows(const char *name, size_t ndim, size_t rows, size_t cols, size_t want_rows,
                 size_t want_cols) {
     if (ndim != (want_cols == 0 ? 1u : 2u) || (want_cols && cols != want_cols) ||
@@ -116,10 +129,14 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
     check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
     check_rows("normals", normals.ndim(), normals.shape(0), normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
     check_rows("radii", radii.ndim(), radii.shape(0), 0, n, 0);
-    SurfelArrays in{points.data(), normals.data(), radii.data(), nullptr, n};
+    std::vector<double> points_copy;
+    std::vector<float> normals_copy, radii_copy, colors_copy;
+    SurfelArrays in{aligned_data(points.data(), 3 * n, points_copy),
+                    aligned_data(normals.data(), 3 * n, normals_copy),
+                    aligned_data(radii.data(), n, radii_copy), nullptr, n};
     if (colors) {
         check_rows("colors", colors->ndim(), colors->shape(0), colors->ndim() > 1 ? colors->shape(1) : 0, n, 3);
-        in.colors = colors->data();
+        in.colors = aligned_data(colors->data(), 3 * n, colors_copy);
     }
     BuildOptions opt{leaf_size, box_depth, threads};
     Progress progress;
@@ -146,7 +163,9 @@ nb::tuple cast_binding(const SurfelTree &t, CArray<T> rays, const TraceOptions &
     BatchStats st;
     {
         nb::gil_scoped_release release;
-        cast_rays(t, rays.data(), n, opt, pixel_angle, threads, out, want_stats, st);
+        std::vector<T> rays_copy;
+        cast_rays(t, aligned_data(rays.data(), 6 * n, rays_copy), n, opt, pixel_angle, threads, out,
+                  want_stats, st);
     }
     check_invalid(st, "rays have NaN/inf values or a zero direction (length outside [1e-30, 1e30])");
     nb::dict d;
@@ -167,7 +186,10 @@ nb::tuple occluded_binding(const SurfelTree &t, CArray<T> rays, CArray<float> t_
     BatchStats st;
     {
         nb::gil_scoped_release release;
-        occluded(t, rays.data(), t_max.data(), n, opt, t_min, pixel_angle, threads, hit,
+        std::vector<T> rays_copy;
+        std::vector<float> t_max_copy;
+        occluded(t, aligned_data(rays.data(), 6 * n, rays_copy), aligned_data(t_max.data(), n, t_max_copy),
+                 n, opt, t_min, pixel_angle, threads, hit,
                  want_stats, st);
     }
     check_invalid(st, "rays have NaN/inf values, a zero direction or a NaN t_max");

@@ -107,6 +107,9 @@ def make_scene_and_camera(args, prepare: bool = True):
         h = args.height or int(round(camera.height * (args.width / camera.width)))
         camera = camera.with_size(w, h)
     if prepare:
+        from ..rendering import check_render_options
+
+        check_render_options(**render_kwargs(args))  # bad options fail before the trees
         prepare_scene(scene)
     return scene, camera
 
