@@ -37,6 +37,8 @@ CALL_SPACING_S = 0.05
 LOAD_PROCESSES = 2
 #: The target: a GUI call answered within this many seconds during any render.
 TARGET_S = 0.100
+#: A call not answered within this many seconds is recorded as taking this long.
+CALL_TIMEOUT_S = 30.0
 #: Variants: (name, render at lower priority, tracer threads: 0 = all cores, -1 = all but one,
 #: None = no render at all: the anchor, what the GUI costs by itself on this machine).
 VARIANTS = (("normal, all cores", False, 0), ("nice, all cores", True, 0),
@@ -54,15 +56,20 @@ res = {{}}
 
 def drive(v):
     try:
-        v.call(lambda: None)                           # the loop runs
+        v.call(lambda: None, timeout=600)              # the loop runs (first draw done)
         if {render}:
-            v.call(v._on_render)
-            deadline = time.monotonic() + 300
-            while v.call(lambda: v.progress.value) <= 0:   # first progress report shown
+            v.call(v._on_render, timeout=600)
+            deadline = time.monotonic() + 600
+            while v.call(lambda: v.progress.value, timeout=600) <= 0:  # first progress shown
                 assert time.monotonic() < deadline, "no progress report"
         lat = []
         for _ in range({calls}):
-            t = time.perf_counter(); v.call(lambda: None); lat.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            try:
+                v.call(lambda: None, timeout={timeout})
+            except TimeoutError:                       # counted as the timeout, not dropped
+                pass
+            lat.append(time.perf_counter() - t)
             time.sleep({spacing})
         res["running"] = v.worker.running or not {render}
         res["latency_s"] = lat
@@ -90,9 +97,9 @@ cloud = sphere(200000, color=(0.8, 0.35, 0.2))
 
 def run_variant(background: bool, threads: int, load_cloud: str) -> dict:
     n = os.cpu_count() or 1
-    t = None if not threads else max(1, n - 1)
+    t = n if threads == 0 else max(1, n - 1)  # explicit: the viewer's default is cores-1
     script = DRIVER.format(background=background, load_cloud=textwrap.dedent(load_cloud),
-                           calls=CALLS, spacing=CALL_SPACING_S, threads=t,
+                           calls=CALLS, spacing=CALL_SPACING_S, threads=t, timeout=CALL_TIMEOUT_S,
                            render=threads is not None)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=900, check=False)
