@@ -5,9 +5,29 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from .errors import CancelledError, PointvizError
+from .interrupt import CancelToken, cancel_scope, sigint_cancels
+
+
+def _spawned_by_the_cli() -> bool:
+    """Whether this process is a child that multiprocessing spawned from the CLI: the local Dask
+    cluster's workers start by re-importing the parent's main module (this one, or the
+    ``pointviz`` script that imports it) under the name ``__mp_main__``, after naming the
+    process (the parent's process is always "MainProcess")."""
+    mp = sys.modules.get("multiprocessing")
+    return "__mp_main__" in sys.modules and mp is not None and (
+        mp.current_process().name != "MainProcess")
+
+
+if _spawned_by_the_cli():
+    # Ctrl-C reaches the whole process group; the CLI process handles it (cancels the frames,
+    # closes the cluster), so its workers ignore it instead of each printing a KeyboardInterrupt
+    # traceback. (Blocking SIGINT while the cluster starts does not reach them: the signal mask
+    # is reset in the spawned process.)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 #: Subcommands, in the order ``pointviz --help`` lists them.
 COMMANDS = ("render", "view", "compare", "path", "info")
@@ -46,23 +66,25 @@ def _version() -> str:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args.run(args) or 0)
-    except KeyboardInterrupt:
-        print("pointviz: interrupted", file=sys.stderr)
-        return 130
-    except CancelledError as exc:
-        print(f"pointviz: {exc}", file=sys.stderr)
-        return 130
-    except (PointvizError, FileExistsError, FileNotFoundError, PermissionError,
-            IsADirectoryError, MemoryError) as exc:
-        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+    """Run one command. Ctrl-C (SIGINT) only sets a cancel token (:mod:`pointviz.interrupt`);
+    the work stops at its next check, outputs in progress are discarded, and the exit status is
+    130 with the single line ``pointviz: interrupted``."""
+    token = CancelToken()
+    # Run as a program (argv None), the handler stays after the run: a Ctrl-C between the end of
+    # the command and the end of the process must not become a traceback.
+    with sigint_cancels(token, restore=argv is not None), cancel_scope(token):
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            status = int(args.run(args) or 0)
+            token.check()  # interrupted after the last check: the run did not end normally
+            return status
+        except (CancelledError, KeyboardInterrupt):
+            print("pointviz: interrupted", file=sys.stderr)
+            return 130
+        except (PointvizError, OSError, MemoryError) as exc:
+            print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
 
 
 def _one_line(exc: BaseException) -> str:

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import CancelledError, InputError, PointvizError, require
+from .interrupt import stage
 
 #: Worker processes of the default LocalCluster (the machine this was written on has 2 cores).
 DEFAULT_WORKERS = 2
@@ -296,7 +297,9 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
         n_workers = len(client.scheduler_info(n_workers=-1)["workers"])
         if n_workers == 0:
             raise PointvizError(f"scheduler: {client.scheduler.address} has no workers")
+        stage("cluster")
         remote = client.scatter(spec, broadcast=True, hash=False)
+        stage("scattered")
         startup = time.perf_counter() - start
         futures = [client.submit(render_frame_task, remote, cam, render_kwargs,
                                  key=f"pointviz-frame-{spec.key[:12]}-{index:05d}-{os.getpid()}",
@@ -318,6 +321,7 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
                 builds[info["pid"]] = builds.get(info["pid"], 0) + int(info["built"])
                 if on_frame(index_of[fut.key], png, info) is False:
                     raise CancelledError("path render cancelled")
+                stage("first_frame")  # (pauses the first time only)
                 fut.release()
         return {"workers": n_workers, "scene_builds": builds,
                 "address": client.scheduler.address, "startup_seconds": startup}

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 
 from .errors import InputError
+from .interrupt import stage
 
 _UMASK_LOCK = threading.Lock()
 
@@ -61,13 +62,16 @@ def _publish(tmp: str, p: Path, overwrite: bool) -> None:
 def atomic_output(path, overwrite: bool = False, suffix: str = ".part"):
     """Yield a temporary file name beside ``path``; on success it becomes ``path``.
 
-    On any error (or KeyboardInterrupt) the temporary file is removed and ``path`` untouched.
+    On any error (or KeyboardInterrupt, or a cancel: :func:`pointviz.interrupt.stage`
+    "writing" is checked just before the rename) the temporary file is removed and ``path``
+    untouched.
     """
     p = check_output_path(path, overwrite)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=suffix, dir=p.parent if str(p.parent) else ".")
     os.close(fd)
     try:
         yield tmp
+        stage("writing")  # Ctrl-C here (or before) leaves neither the file nor the temporary
         _publish(tmp, p, overwrite)
     finally:
         if os.path.exists(tmp):

@@ -65,6 +65,7 @@ from .camera import (
     view_basis,
 )
 from .errors import CancelledError, FileFormatError, InputError, require
+from .interrupt import stage
 
 #: Catmull-Rom exponent: 0.5 is the centripetal variant (no cusps or self-intersections).
 CATMULL_ROM_ALPHA = 0.5
@@ -1203,6 +1204,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
             atomic_write_bytes(files[i], png, overwrite=True)
             if not advance():
                 raise CancelledError("path render cancelled")
+            stage("first_frame")  # (pauses the first time only)
     elif todo:
         def on_frame(i: int, png: bytes, _info: dict) -> bool:
             atomic_write_bytes(files[i], png, overwrite=True)

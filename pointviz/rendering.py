@@ -8,8 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _core
+from . import _core, interrupt
 from .errors import CancelledError, InputError
+from .interrupt import stage
+
+#: Nice increment of the tracer's threads in ``render(background=True)``: a GUI thread at normal
+#: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
+#: Linux CFS), and the tracer still gets every cycle the GUI leaves.
+BACKGROUND_NICE = 10
 
 
 @dataclass
@@ -111,9 +117,25 @@ def _check_int(value, name, lo, hi):
     return int(value)
 
 
+def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
+                         threads: int | None = None, lod_pixels: float = 1.0, **_ignored):
+    """The numeric options of :func:`render`, checked (InputError naming the bad one) and
+    normalised: ``(spp, reflections, seed, threads, lod_pixels)``. Callers with expensive work
+    before the render (the CLI: trees) check first."""
+    spp = _check_int(spp, "spp", 1, 4096)
+    reflections = _check_int(reflections, "reflections", 0, 16)
+    seed = _check_int(seed, "seed", 0, 2**63 - 1)
+    if threads is not None:
+        threads = _check_int(threads, "threads", 1, 1024)
+    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
+        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
+    return spp, reflections, seed, threads, float(lod_pixels)
+
+
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise: bool | str = False) -> Frame:
+           cancel=None, ground=None, look=None, denoise: bool | str = False,
+           background: bool = False) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -134,9 +156,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     threads : int, optional
         Default: all cores.
     progress : callable(done, total), optional
-        Called from the calling thread as tiles complete; returning False cancels.
+        Called from the calling thread every few ms while tiles complete (done, total in
+        tiles); returning False cancels. An exception it raises stops the render and propagates.
     cancel : threading.Event or callable, optional
-        Set (or returning True) to stop the render; :class:`CancelledError` is raised.
+        Set (or returning True) to stop the render; :class:`CancelledError` is raised. The token
+        of :mod:`pointviz.interrupt` in force (the CLI's Ctrl-C) stops it too.
     ground : str or Material, optional
         Overrides the scene's ground (for a PointCloud input).
     look : {"auto", "studio", "outdoor", "flat"} or Look, optional
@@ -146,6 +170,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
         "high" quality. The tracer's colour stays in ``frame.noisy_color``.
+    background : bool
+        Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
 
     Returns
     -------
@@ -169,13 +195,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
             scene = scene.with_look(look)
         if ground is not None:
             scene = scene.with_ground(ground)
-    spp = _check_int(spp, "spp", 1, 4096)
-    reflections = _check_int(reflections, "reflections", 0, 16)
-    seed = _check_int(seed, "seed", 0, 2**63 - 1)
-    if threads is not None:
-        threads = _check_int(threads, "threads", 1, 1024)
-    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
+    spp, reflections, seed, threads, lod_pixels = check_render_options(
+        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels)
 
     rs, origin = scene.to_core(camera, lod_pixels)
     settings = _core.RenderSettings()
@@ -187,19 +208,24 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     settings.threads = threads or 0
 
     is_cancelled = _cancel_check(cancel)
+    first_tile = [False]
 
     def poll(done, total):
-        if is_cancelled():
-            return False
-        if progress is not None:
-            r = progress(int(done), int(total))
-            if r is False:
-                return False
-        return True
+        """Called by the core on this thread every few ms; False stops the render."""
+        if done and not first_tile[0]:
+            first_tile[0] = True
+            stage("first_tile")
+        if progress is not None and total and progress(int(done), int(total)) is False:
+            return False  # (total 0: the core has not started counting)
+        return not is_cancelled()  # after the report: a cancel it caused counts now
 
-    bufs, stats = _core.render(rs, camera_model(camera, origin), settings, poll)
-    if bufs is None:
-        raise CancelledError("render cancelled")
+    try:
+        bufs, stats = _core.render(rs, camera_model(camera, origin), settings, poll,
+                                   nice=BACKGROUND_NICE if background else 0)
+    except CancelledError:
+        raise CancelledError("render cancelled") from None
+    if not first_tile[0]:  # a render that ended before the first poll still passes the stage
+        stage("first_tile")
     stats = dict(stats)
     total_rays = stats["primary_rays"] + stats["shadow_rays"] + stats["reflection_rays"]
     stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
@@ -223,10 +249,12 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
 
 
 def _cancel_check(cancel):
+    """``cancel`` (Event, callable or None) as a function, or'ed with the token in force
+    (:mod:`pointviz.interrupt`: the CLI's Ctrl-C)."""
     if cancel is None:
-        return lambda: False
+        return interrupt.cancelled
     if isinstance(cancel, threading.Event) or hasattr(cancel, "is_set"):
-        return cancel.is_set
+        return lambda: cancel.is_set() or interrupt.cancelled()
     if callable(cancel):
-        return lambda: bool(cancel())
+        return lambda: bool(cancel()) or interrupt.cancelled()
     raise InputError("cancel: expected a threading.Event or a callable returning True to stop")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, require
+from .interrupt import check, stage
 
 #: Container formats :func:`write_video` can produce, by file extension.
 VIDEO_EXTENSIONS = (".mp4", ".gif")
@@ -64,6 +65,7 @@ def _pad_even(img: np.ndarray) -> np.ndarray:
 
 def _frames(frames: Iterable) -> Iterator[np.ndarray]:
     for i, f in enumerate(frames):
+        check()
         img = read_png(f) if isinstance(f, (str, os.PathLike)) else np.asarray(f)
         if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
             raise InputError(f"frames[{i}]: expected (h, w, 3) uint8, got {img.shape} {img.dtype}")
@@ -95,7 +97,11 @@ def write_video(path, frames: Iterable, fps: float, *, overwrite: bool = False) 
     from .files import atomic_output
 
     with atomic_output(p, overwrite, suffix=f".part{p.suffix}") as tmp:
-        count = (_write_mp4 if p.suffix.lower() == ".mp4" else _write_gif)(tmp, _frames(frames), fps)
+        try:
+            count = (_write_mp4 if p.suffix.lower() == ".mp4" else _write_gif)(tmp, _frames(frames), fps)
+        except Exception:
+            check()  # Ctrl-C reaches the encoder too (same process group): that is the cause
+            raise
         if count == 0:
             raise InputError("frames: no frames to encode")
     return p
@@ -122,6 +128,8 @@ def _write_mp4(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
                                  f"from the first frame's {size[1]}x{size[0]}")
             writer.send(np.ascontiguousarray(img))
             count += 1
+            if count == 1:
+                stage("encoding")
     finally:
         if writer is not None:
             writer.close()
@@ -136,6 +144,7 @@ def _write_gif(tmp: str, frames: Iterator[np.ndarray], fps: float) -> int:
     if any(im.shape != images[0].shape for im in images):
         raise InputError("frames: every frame must have the same size")
     duration = max(GIF_MIN_DURATION_MS, round(1000.0 / fps))
+    stage("encoding")
     iio.imwrite(tmp, np.stack(images), extension=".gif", plugin="pillow", duration=duration,
                 loop=0)
     return len(images)

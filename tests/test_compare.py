@@ -3,6 +3,7 @@ determinism, the report (schema, images, headless Chromium) and the CLI."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
 import subprocess
@@ -11,16 +12,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("embreex")
-pytest.importorskip("flip_evaluator")
+from pointviz import Camera, InputError, render, shapes 
+from pointviz.comparison import analytic, metrics 
+from pointviz.comparison.mesh import MeshGeometry 
+from pointviz.comparison.run import Settings, render_geometry 
+from pointviz.comparison.schema import SCHEMA, builtin_errors, validate 
+from pointviz.scene import Scene 
+from pointviz.surfels import SurfelScene 
 
-from pointviz import Camera, InputError, render, shapes  # noqa: E402
-from pointviz.comparison import analytic, metrics  # noqa: E402
-from pointviz.comparison.mesh import MeshGeometry  # noqa: E402
-from pointviz.comparison.run import Settings, render_geometry  # noqa: E402
-from pointviz.comparison.schema import SCHEMA, builtin_errors, validate  # noqa: E402
-from pointviz.scene import Scene  # noqa: E402
-from pointviz.surfels import SurfelScene  # noqa: E402
+#: The mesh backend needs embreex; report scores need flip_evaluator (the 'compare' extra).
+#: Tests of the metrics' numpy formulas need neither and always run.
+needs_embreex = pytest.mark.skipif(importlib.util.find_spec("embreex") is None,
+                                   reason="embreex is not installed: pip install 'pointviz[compare]'")
+needs_flip = pytest.mark.skipif(importlib.util.find_spec("flip_evaluator") is None,
+                                reason="flip_evaluator is not installed: pip install 'pointviz[compare]'")
 
 TIMES = ("times",)
 
@@ -34,6 +39,7 @@ def _frames(width=120, height=90):
     return mesh, surf
 
 
+@needs_embreex
 def test_mesh_backend_agrees_with_surfels_on_exact_sphere():
     mesh, surf = _frames()
     mm, sm = metrics.hit_mask(mesh.alpha), metrics.hit_mask(surf.alpha)
@@ -49,6 +55,7 @@ def test_mesh_backend_agrees_with_surfels_on_exact_sphere():
     assert np.percentile(ang, 99) < 5.0
 
 
+@needs_embreex
 def test_mesh_queries_honour_tmin_tmax():
     v, f = analytic.sphere_mesh(1.0, res=64)
     g = MeshGeometry(v, f)
@@ -71,6 +78,7 @@ def test_mesh_queries_honour_tmin_tmax():
     assert not g.occluded(rays[:1])[0]
 
 
+@needs_embreex
 def test_mesh_geometry_rejects_bad_input():
     with pytest.raises(InputError, match="faces"):
         MeshGeometry(np.zeros((3, 3)), np.array([[0, 1, 3]]))
@@ -111,6 +119,7 @@ def test_normal_error_of_known_rotations(rng):
     assert metrics.normal_error_deg(n, rot, mask) == pytest.approx(angles.mean(), abs=1e-6)
 
 
+@needs_flip
 def test_flip_is_zero_for_identical_and_grows_with_error(rng):
     a = rng.random((32, 32, 3))
     f0, m0 = metrics.flip(a, a)
@@ -136,6 +145,8 @@ def test_builtin_validator_catches_violations():
         validate(doc)
 
 
+@needs_embreex
+@needs_flip
 def test_identical_settings_give_identical_metrics(tmp_path):
     from pointviz.comparison import compare
 
@@ -164,6 +175,8 @@ def quick_report(tmp_path_factory):
     return out, doc
 
 
+@needs_embreex
+@needs_flip
 @pytest.mark.slow
 def test_report_files_schema_and_images(quick_report):
     out, doc = quick_report
@@ -190,6 +203,8 @@ def test_report_files_schema_and_images(quick_report):
     assert all("trust" in s for s in doc["stability"]["summary"])
 
 
+@needs_embreex
+@needs_flip
 @pytest.mark.slow
 def test_report_renders_in_headless_chromium(quick_report, tmp_path):
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -210,6 +225,8 @@ def test_report_renders_in_headless_chromium(quick_report, tmp_path):
     assert "speed_accuracy.png" in dom.stdout and "Where methods fail" in dom.stdout
 
 
+@needs_embreex
+@needs_flip
 def test_cli_compare_quick(tmp_path, capsys):
     from pointviz.cli import main
 
@@ -222,6 +239,8 @@ def test_cli_compare_quick(tmp_path, capsys):
                  "nope"]) == 2
 
 
+@needs_embreex
+@needs_flip
 @pytest.mark.data
 @pytest.mark.slow
 def test_armadillo_mesh_is_its_own_reference(shared_data, tmp_path):
@@ -234,6 +253,7 @@ def test_armadillo_mesh_is_its_own_reference(shared_data, tmp_path):
     assert doc["entries"][0]["metrics"]["iou"] > 0.9
 
 
+@needs_embreex
 def test_mesh_backend_renders_from_several_threads_at_once():
     """Two Python threads render the same embreex mesh scene concurrently (each render calls
     back into Python from its own C++ thread, taking the GIL): frames equal the serial one."""

@@ -4,7 +4,6 @@ round trips written to tmp_path, registration of Stanford range scans, and bad i
 from __future__ import annotations
 
 import json
-import time
 import warnings
 
 import numpy as np
@@ -15,7 +14,12 @@ from pointviz.cloud import PointCloud, vertex_normals
 from pointviz.errors import FileFormatError, InputError
 from pointviz.io import load, parse_conf, quaternion_matrix
 
-o3d = pytest.importorskip("open3d")
+
+def _o3d():
+    """Open3D, for the tests that write files with it or use it as an oracle: only those skip
+    when it is missing (the readers under test do not need it)."""
+    return pytest.importorskip("open3d")
+
 
 # ------------------------------------------------------------------------------------------
 # real data, checked against summary.json (written by whoever fetched the data, not by us)
@@ -65,10 +69,8 @@ def test_real_file_counts_and_bounds_match_summary(shared_data, summary, rel):
 
 
 @pytest.mark.data
-def test_armadillo_loads_with_outward_normals_quickly(shared_data):
-    t0 = time.perf_counter()
+def test_armadillo_loads_with_outward_normals(shared_data):
     cloud = load(shared_data / "stanford_armadillo/Armadillo.ply")  # estimate=True: radii too
-    elapsed = time.perf_counter() - t0
     assert len(cloud) == 172_974 and cloud.has_normals
     assert np.all(cloud.radii > 0)
     # the face normals are outward (positive enclosed volume) and the estimator finds the same
@@ -77,7 +79,6 @@ def test_armadillo_loads_with_outward_normals_quickly(shared_data):
     estimated = PointCloud(ref.points).normals
     agree = np.einsum("ij,ij->i", estimated, cloud.normals) > 0
     assert agree.mean() > 0.99
-    assert elapsed < 20  # measured 0.4 s; generous for a loaded 2-core machine
 
 
 @pytest.mark.data
@@ -103,6 +104,7 @@ def test_organised_pcd_drops_nan_holes_with_a_note(shared_data):
 
 @pytest.mark.data
 def test_mesh_surface_sampling(shared_data):
+    o3d = _o3d()
     path = shared_data / "stanford_bunny/reconstruction/bun_zipper.ply"
     cloud = load(path, sample=5000, rng=1, estimate=False)
     assert len(cloud) == 5000 and cloud.has_normals
@@ -156,9 +158,7 @@ def test_conf_scans_line_up(shared_data, summary, conf, nscans):
     """Measured median distances to the other scans: bunny 0.23-0.34 mm, dragon 0.22-0.24 mm
     (sample spacing ~0.5 mm); with R(q) p + t instead: median 11.7 mm (bunny), 4.3 mm (dragon)."""
     path = shared_data / conf
-    t0 = time.perf_counter()
     cloud = load(path, estimate=False)
-    elapsed = time.perf_counter() - t0
     scans = parse_conf(path)
     assert len(scans) == nscans
     folder = conf.rsplit("/", 1)[0]
@@ -169,7 +169,6 @@ def test_conf_scans_line_up(shared_data, summary, conf, nscans):
     assert good.max() < 0.5e-3  # metres: sub-millimetre, about half the scan spacing
     bad = registration_residuals(*wrong_convention(path))
     assert np.median(bad) > 10 * np.median(good)
-    assert elapsed < 20  # parse + transform: measured ~0.2 s
 
 
 @pytest.mark.data
@@ -179,6 +178,7 @@ def test_conf_normals_face_the_scanner_and_agree_with_the_reconstruction(shared_
     Measured: 99.5% agree in sign. Orienting toward each scan's local origin instead (inside
     the bunny) agrees on only 3-22% per scan.
     """
+    o3d = _o3d()
     cloud = load(shared_data / "stanford_bunny/data/bun.conf")
     mesh = o3d.io.read_triangle_mesh(
         str(shared_data / "stanford_bunny/reconstruction/bun_zipper.ply")
@@ -195,6 +195,7 @@ def test_conf_normals_face_the_scanner_and_agree_with_the_reconstruction(shared_
 
 
 def write_ply(path, points, **kw):
+    o3d = _o3d()
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     for key, value in kw.items():
         setattr(pcd, key, o3d.utility.Vector3dVector(value))
@@ -260,6 +261,7 @@ def test_ply_roundtrip_with_normals_and_colors(tmp_path, rng):
 
 @pytest.mark.parametrize("ext", [".xyz", ".xyzn", ".pcd", ".pts"])
 def test_open3d_point_formats(tmp_path, rng, ext):
+    o3d = _o3d()
     pts = rng.random((100, 3))
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     pcd.normals = o3d.utility.Vector3dVector(np.tile([0.0, 0.0, 1.0], (100, 1)))
@@ -272,6 +274,7 @@ def test_open3d_point_formats(tmp_path, rng, ext):
 
 
 def test_pcd_with_nan_rows_warns(tmp_path, rng):
+    o3d = _o3d()
     pts = rng.random((50, 3))
     pts[[3, 7]] = np.nan
     path = tmp_path / "holes.pcd"
@@ -404,6 +407,7 @@ def test_truncated_binary_ply(tmp_path, rng):
 
 
 def test_truncated_binary_ply_mesh(tmp_path):
+    o3d = _o3d()
     mesh = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=20)
     path = tmp_path / "mesh.ply"
     assert o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False)
@@ -415,6 +419,7 @@ def test_truncated_binary_ply_mesh(tmp_path):
 
 
 def test_truncated_ascii_ply(tmp_path, rng):
+    o3d = _o3d()
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.random((100, 3))))
     path = tmp_path / "a.ply"
     assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=True)

@@ -175,8 +175,11 @@ def test_save_png_8_and_16_bit_and_refuse_overwrite(ball, tmp_path):
     p8 = frame.save(tmp_path / "a.png")
     assert np.array_equal(np.asarray(Image.open(p8)), frame.to_srgb8())
     p16 = frame.save(tmp_path / "b.png", bits=16)
-    img16 = np.asarray(Image.open(p16))  # Pillow reads 48-bit RGB PNGs as 8-bit: compare
-    assert img16.shape[:2] == (32, 48)
+    img16 = _read_png16(p16)
+    assert img16.dtype == np.uint16 and img16.shape == (32, 48, 3)
+    # the same picture as the 8-bit file, with 257 times finer steps (65535 = 255 * 257)
+    assert np.abs(img16 / 257.0 - frame.to_srgb8()).max() <= 0.5 + 1e-6
+    assert len(np.unique(img16 % 257)) > 1  # not 8-bit values scaled up
     before = p8.read_bytes()
     with pytest.raises(FileExistsError):
         frame.save(p8)
@@ -184,19 +187,27 @@ def test_save_png_8_and_16_bit_and_refuse_overwrite(ball, tmp_path):
     assert not list(tmp_path.glob("*.part"))
 
 
+def _read_png16(path) -> np.ndarray:
+    """(h, w, c) pixels of a PNG read by VTK's reader, the independent 16-bit decoder (Pillow
+    reads 48-bit RGB as 8-bit)."""
+    vtk = pytest.importorskip("vtk", reason="VTK's PNG reader is the independent 16-bit decoder")
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    reader = vtk.vtkPNGReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    img = reader.GetOutput()
+    w, h, _ = img.GetDimensions()
+    arr = vtk_to_numpy(img.GetPointData().GetScalars())
+    return arr.reshape(h, w, -1)[::-1]  # VTK is bottom-up
+
+
 def test_sixteen_bit_png_round_trip(tmp_path):
     from pointviz.images import encode_png
 
     px = (np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000)
     (tmp_path / "x.png").write_bytes(encode_png(px))
-    vtk = pytest.importorskip("vtk", reason="VTK's PNG reader is the independent 16-bit decoder")
-    from vtk.util.numpy_support import vtk_to_numpy
-
-    reader = vtk.vtkPNGReader()
-    reader.SetFileName(str(tmp_path / "x.png"))
-    reader.Update()
-    img = reader.GetOutput()
-    arr = vtk_to_numpy(img.GetPointData().GetScalars()).reshape(4, 5, 3)[::-1]  # VTK is bottom-up
+    arr = _read_png16(tmp_path / "x.png")
     assert arr.dtype == np.uint16
     assert np.array_equal(arr, px)
 

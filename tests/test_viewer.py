@@ -215,54 +215,71 @@ def test_view_cli_exits_zero_with_screenshot(tmp_path):
     assert _load_png(tmp_path / "cli.png").std() > NOT_BLANK_STD
 
 
+#: GUI-thread round trips timed while the render runs.
+LATENCY_CALLS = 30
+#: Longest a GUI-thread call may wait during a render. The target is 100 ms
+#: (benchmarks/bench_viewer.py measures it, idle and with every core busy); this bound is what
+#: the test can promise on a shared machine under Xvfb's software renderer, where one redraw of
+#: the window takes up to ~0.4 s, yet a starved GUI (the tracer at normal priority on every
+#: core: several seconds without an answer) fails it.
+MAX_GUI_LATENCY_S = 1.5
+
+
 @pytest.mark.gui
 @needs_display
 def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
-    """A deliberately slow render (spp 512): GUI-thread calls keep completing while it runs;
-    Cancel ends the worker; closing the window mid-render ends it too."""
+    """A render that cannot finish during the test (spp 4096): GUI-thread calls keep completing
+    while it runs, within MAX_GUI_LATENCY_S; Cancel ends the worker; closing the window
+    mid-render ends it too. Every wait is on an observed state, never a sleep; a failure in the
+    driver closes the window at once and fails the test with its traceback."""
     out = _python(f"""
         {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
-        import json, threading, time
+        import json, threading, time, traceback
         import pointviz
         res = {{}}
 
-        def drive(v):
-            time.sleep(1.0)
-            v.call(v._on_render)                      # the Render button's handler
-            lat = []
-            t_end = time.monotonic() + 1.5
-            while time.monotonic() < t_end:
-                t = time.monotonic(); v.call(lambda: None); lat.append(time.monotonic() - t)
-                time.sleep(0.05)
-            res["running_during"] = v.worker.running
-            res["calls"] = len(lat)
-            res["max_latency_s"] = max(lat)
-            t = time.monotonic(); v.call(v._on_cancel)  # the Cancel button's handler
-            th = v.worker.thread; th.join(10)
-            res["cancel_join_s"] = time.monotonic() - t
-            res["ended_after_cancel"] = not th.is_alive()
-            time.sleep(0.3)
-            res["label_after_cancel"] = v.call(lambda: v.render_label.text)
-            v.call(v._on_render)
-            time.sleep(0.5)
-            res["thread2"] = v.worker.thread
-            v.call(v.window.close)                    # close mid-render
+        def wait_for(v, what, cond, timeout=120):
+            deadline = time.monotonic() + timeout
+            while not v.call(cond):                   # one GUI round trip per check
+                assert time.monotonic() < deadline, f"{{what}}: not within {{timeout}} s"
 
-        v = pointviz.view(cloud, spp=512, width=640, height=480,
+        def drive(v):
+            try:
+                v.call(v._on_render)                  # the Render button's handler
+                wait_for(v, "first progress report", lambda: v.progress.value > 0)
+                lat = []
+                for _ in range({LATENCY_CALLS}):
+                    t = time.perf_counter(); v.call(lambda: None); lat.append(time.perf_counter() - t)
+                res["running_during"] = v.worker.running
+                res["max_latency_s"] = max(lat)
+                t = time.monotonic(); v.call(v._on_cancel)  # the Cancel button's handler
+                th = v.worker.thread; th.join(10)
+                res["cancel_join_s"] = time.monotonic() - t
+                res["ended_after_cancel"] = not th.is_alive()
+                wait_for(v, "label after cancel", lambda: v.render_label.text == "cancelled", 30)
+                v.call(v._on_render)
+                wait_for(v, "second render under way", lambda: v.progress.value > 0)
+                res["thread2"] = v.worker.thread
+                v.call(v.window.close)                # close mid-render
+            except BaseException:
+                res["error"] = traceback.format_exc()
+                v.app.post_to_main_thread(v.window, v.window.close)
+
+        v = pointviz.view(cloud, spp=4096, width=640, height=480,
                           on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
-        th = res.pop("thread2")
-        res["ended_after_close"] = not th.is_alive()
-        res["ticks"] = v.timings.get("ticks_during_render")
+        th = res.pop("thread2", None)
+        res["ended_after_close"] = th is not None and not th.is_alive()
+        res["worker_ended_on_close"] = v.timings.get("worker_ended_on_close")
         print("RESULT" + json.dumps(res))
         """, tmp_path)
     line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
     res = json.loads(line[len("RESULT"):])
+    assert "error" not in res, res["error"]
     print("viewer responsiveness:", res)
-    assert res["running_during"], "the slow render finished too early to test responsiveness"
-    assert res["calls"] >= 5  # the GUI thread answered throughout
+    assert res["running_during"], "the render ended before the latency was measured"
+    assert res["max_latency_s"] < MAX_GUI_LATENCY_S, res
     assert res["ended_after_cancel"] and res["cancel_join_s"] < STOP_TIMEOUT_S
-    assert res["label_after_cancel"] == "cancelled"
-    assert res["ended_after_close"]
+    assert res["ended_after_close"] and res["worker_ended_on_close"]
 
 
 def test_worker_compare_renders_the_reconstructed_mesh_with_the_same_view():
@@ -303,3 +320,17 @@ def test_keyframes_make_a_path_that_the_cli_reads(tmp_path):
     first = again.camera_at(0.0)
     np.testing.assert_allclose(first.eye, Camera.fit(cloud, direction=(0, -0.3, -1), width=64,
                                                      height=48).eye, atol=1e-9)
+    # and the CLI renders it: one frame per 1 / fps of the path, at the path's size
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(cloud)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property float nx\nproperty float ny\nproperty float nz\nend_header\n")
+    data = np.hstack([cloud.points, cloud.normals]).astype("<f4").tobytes()
+    (tmp_path / "cloud.ply").write_bytes(header.encode() + data)
+    out = subprocess.run([sys.executable, "-m", "pointviz.cli", "path", "cloud.ply", "path.json",
+                          "-o", "frames", "--scheduler", "serial", "--spp", "1"],
+                         cwd=tmp_path, check=False, capture_output=True, text=True,
+                         timeout=GUI_TIMEOUT_S)
+    assert out.returncode == 0, out.stderr[-2000:]
+    frames = sorted((tmp_path / "frames").glob("frame_*.png"))
+    assert len(frames) == again.n_frames == 9  # 2 s at 4 fps, both ends included
+    assert all(_load_png(f).shape == (48, 64, 3) for f in frames)

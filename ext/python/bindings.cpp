@@ -10,6 +10,8 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdint>
+#include <cstring>
 #include <optional>
 
 #include <memory>
@@ -23,6 +25,7 @@
 #include "pointviz/tree.h"
 #include "pygeometry.h"
 #include "readers_bindings.h"
+#include "run_progress.h"
 
 namespace nanobind::detail {
 /// Vec3 <-> any sequence of three numbers (tuple on the way out).
@@ -75,6 +78,17 @@ nb::ndarray<nb::numpy, T> new_array(std::initializer_list<size_t> shape, T **dat
     return nb::ndarray<nb::numpy, T>(buf, shape.size(), shape.begin(), owner);
 }
 
+/// The array's data, or (when it is misaligned for T) an aligned copy of it in `copy`. Arrays
+/// unpickled from out-of-band buffers (a Dask worker's scene) can sit at any byte offset, and
+/// reading a misaligned double is undefined behaviour (UBSan flags it).
+template <class T>
+const T *aligned_data(const T *data, size_t count, std::vector<T> &copy) {
+    if (reinterpret_cast<std::uintptr_t>(data) % alignof(T) == 0) return data;
+    copy.resize(count);
+    std::memcpy(copy.data(), data, count * sizeof(T));
+    return copy.data();
+}
+
 void check_rows(const char *name, size_t ndim, size_t rows, size_t cols, size_t want_rows,
                 size_t want_cols) {
     if (ndim != (want_cols == 0 ? 1u : 2u) || (want_cols && cols != want_cols) ||
@@ -103,17 +117,33 @@ nb::dict stats_dict(const BatchStats &s) {
     return d;
 }
 
-/// The input arrays of a build, shapes checked.
+/// `poll` as given or, for None, pointviz.interrupt.poll (the ambient cancel token): every long
+/// call honours the CLI's Ctrl-C without each caller passing a token down.
+nb::object poll_or_ambient(nb::object poll) {
+    if (!poll.is_none()) return poll;
+    return nb::module_::import_("pointviz.interrupt").attr("poll");
+}
+
+/// Aligned copies of a build's input arrays, made only where the caller's were misaligned.
+struct SurfelCopies {
+    std::vector<double> points;
+    std::vector<float> normals, radii, colors;
+};
+
+/// The input arrays of a build, shapes checked; `keep` holds any aligned copies.
 SurfelArrays surfel_arrays(const CArray<double> &points, const CArray<float> &normals,
-                           const CArray<float> &radii, const std::optional<CArray<float>> &colors) {
+                           const CArray<float> &radii, const std::optional<CArray<float>> &colors,
+                           SurfelCopies &keep) {
     size_t n = points.shape(0);
     check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
     check_rows("normals", normals.ndim(), normals.shape(0), normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
     check_rows("radii", radii.ndim(), radii.shape(0), 0, n, 0);
-    SurfelArrays in{points.data(), normals.data(), radii.data(), nullptr, n};
+    SurfelArrays in{aligned_data(points.data(), 3 * n, keep.points),
+                    aligned_data(normals.data(), 3 * n, keep.normals),
+                    aligned_data(radii.data(), n, keep.radii), nullptr, n};
     if (colors) {
         check_rows("colors", colors->ndim(), colors->shape(0), colors->ndim() > 1 ? colors->shape(1) : 0, n, 3);
-        in.colors = colors->data();
+        in.colors = aligned_data(colors->data(), 3 * n, keep.colors);
     }
     return in;
 }
@@ -121,11 +151,16 @@ SurfelArrays surfel_arrays(const CArray<double> &points, const CArray<float> &no
 std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> normals,
                                       CArray<float> radii, std::optional<CArray<float>> colors,
                                       std::array<double, 3> origin, uint32_t leaf_size,
-                                      uint32_t box_depth, int threads) {
-    SurfelArrays in = surfel_arrays(points, normals, radii, colors);
+                                      uint32_t box_depth, int threads, nb::object poll) {
+    SurfelCopies keep;
+    SurfelArrays in = surfel_arrays(points, normals, radii, colors, keep);
     BuildOptions opt{leaf_size, box_depth, threads};
-    nb::gil_scoped_release release;
-    return std::make_unique<SurfelTree>(in, origin.data(), opt);
+    Progress progress;
+    return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &p) {
+        auto tree = std::make_unique<SurfelTree>(in, origin.data(), opt);
+        p.check();  // the build does not poll yet: a cancel during it is honoured at its end
+        return tree;
+    });
 }
 
 template <class T, class Tree>
@@ -144,7 +179,9 @@ nb::tuple cast_binding(const Tree &t, CArray<T> rays, const TraceOptions &opt,
     BatchStats st;
     {
         nb::gil_scoped_release release;
-        cast_rays(t, rays.data(), n, opt, pixel_angle, threads, out, want_stats, st);
+        std::vector<T> rays_copy;
+        cast_rays(t, aligned_data(rays.data(), 6 * n, rays_copy), n, opt, pixel_angle, threads, out,
+                  want_stats, st);
     }
     check_invalid(st, "rays have NaN/inf values or a zero direction (length outside [1e-30, 1e30])");
     nb::dict d;
@@ -165,7 +202,10 @@ nb::tuple occluded_binding(const Tree &t, CArray<T> rays, CArray<float> t_max,
     BatchStats st;
     {
         nb::gil_scoped_release release;
-        occluded(t, rays.data(), t_max.data(), n, opt, t_min, pixel_angle, threads, hit,
+        std::vector<T> rays_copy;
+        std::vector<float> t_max_copy;
+        occluded(t, aligned_data(rays.data(), 6 * n, rays_copy), aligned_data(t_max.data(), n, t_max_copy),
+                 n, opt, t_min, pixel_angle, threads, hit,
                  want_stats, st);
     }
     check_invalid(st, "rays have NaN/inf values, a zero direction or a NaN t_max");
@@ -211,7 +251,8 @@ std::unique_ptr<KdTree> make_kdtree(CArray<double> points, CArray<float> normals
                                     CArray<float> radii, std::optional<CArray<float>> colors,
                                     std::array<double, 3> origin, float intersect_cost,
                                     float empty_bonus, uint32_t max_leaf, uint32_t max_depth) {
-    SurfelArrays in = surfel_arrays(points, normals, radii, colors);
+    SurfelCopies keep;
+    SurfelArrays in = surfel_arrays(points, normals, radii, colors, keep);
     if (!(intersect_cost > 0.f) || !(empty_bonus >= 0.f && empty_bonus < 1.f) || max_leaf < 1)
         throw nb::value_error("KdTree: intersect_cost must be > 0, empty_bonus in [0, 1), max_leaf >= 1");
     Progress progress;
@@ -226,72 +267,33 @@ struct PyRenderScene {
     std::vector<PyGeometry *> callbacks;
 };
 
-/// Runs the renderer on a worker thread while this thread, holding the GIL only briefly,
-/// reports progress and watches for cancellation (the poll callback returning False, an
-/// exception in it, or Ctrl-C).
+/// Renders on a worker thread (run_with_progress): `poll(tiles_done, tiles_total)` reports
+/// progress and returns False to cancel. A cancelled render raises pointviz.CancelledError.
 nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSettings &set,
-                      nb::object poll) {
+                      nb::object poll, int nice) {
     auto fb = std::make_unique<FrameBuffers>();
     RenderStats st;
-    std::atomic<bool> cancel{false}, done{false};
-    for (PyGeometry *g : ps.callbacks) g->set_cancel(&cancel);
-    std::exception_ptr err;
-    bool completed = false, interrupted = false;
-    std::string poll_error;
+    Progress progress;
     auto t0 = std::chrono::steady_clock::now();
-    {
-        nb::gil_scoped_release release;
-        std::thread worker([&] {
-            try {
-                completed = render(ps.scene, cam, set, *fb, st, cancel);
-            } catch (...) {
-                err = std::current_exception();
-                cancel = true;
-            }
-            done = true;
-        });
-        uint64_t reported = ~0ull;
-        while (!done.load()) {
-            std::this_thread::sleep_for(std::chrono::milliseconds(20));
-            uint64_t now = st.tiles_done.load();
-            nb::gil_scoped_acquire gil;
-            if (PyErr_CheckSignals() != 0) {
-                PyErr_Clear();
-                interrupted = true;
-                cancel = true;
-            }
-            if (!poll.is_none() && now != reported && !cancel.load()) {
-                reported = now;
-                try {
-                    nb::object r = poll(now, st.tiles_total);
-                    if (!r.is_none() && !nb::cast<bool>(r)) cancel = true;
-                } catch (const std::exception &e) {
-                    poll_error = e.what();
-                    cancel = true;
-                }
-            }
-        }
-        worker.join();
-    }
-    for (PyGeometry *g : ps.callbacks) g->set_cancel(nullptr);
-    if (err) std::rethrow_exception(err);
-    for (PyGeometry *g : ps.callbacks)
-        if (!g->error().empty()) throw std::runtime_error("geometry callback failed: " + g->error());
-    if (!poll_error.empty()) throw std::runtime_error("progress callback failed: " + poll_error);
-    if (interrupted) {
-        PyErr_SetNone(PyExc_KeyboardInterrupt);
-        throw nb::python_error();
-    }
+    for (PyGeometry *g : ps.callbacks) g->set_cancel(&progress.cancel);
+    struct Detach {  // the geometries outlive this call: drop the pointer to `progress`
+        PyRenderScene &ps;
+        ~Detach() { for (PyGeometry *g : ps.callbacks) g->set_cancel(nullptr); }
+    } detach{ps};
+    run_with_progress(progress, poll, [&](Progress &p) {
+        if (render(ps.scene, cam, set, *fb, st, p)) return;
+        for (PyGeometry *g : ps.callbacks)  // a failed callback cancels the render: say why
+            if (!g->error().empty()) throw std::runtime_error("geometry callback failed: " + g->error());
+        throw Cancelled();
+    }, RunOptions{nice});
     double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     nb::dict d;
-    d["completed"] = completed && !cancel.load();
     d["seconds"] = secs;
     d["primary_rays"] = st.primary.load();
     d["shadow_rays"] = st.shadow.load();
     d["reflection_rays"] = st.reflection.load();
     d["tiles_done"] = st.tiles_done.load();
     d["tiles_total"] = st.tiles_total;
-    if (!d["completed"].equal(nb::bool_(true))) return nb::make_tuple(nb::none(), d);
     size_t h = size_t(cam.height), w = size_t(cam.width);
     nb::dict bufs;
     auto put = [&](const char *name, const std::vector<float> &src, size_t channels) {
@@ -313,6 +315,16 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
 
 NB_MODULE(_core, m) {
     m.doc() = "pointviz C++ core: surfel hierarchy, traversal and rendering";
+
+    // pointviz::Cancelled (a core call stopped by its Progress) -> pointviz.CancelledError.
+    nb::register_exception_translator([](const std::exception_ptr &p, void *) {
+        try {
+            std::rethrow_exception(p);
+        } catch (const Cancelled &e) {
+            nb::object cls = nb::module_::import_("pointviz.errors").attr("CancelledError");
+            PyErr_SetString(cls.ptr(), e.what());
+        }
+    });
 
     nb::enum_<Interpolation>(m, "Interpolation")
         .value("none", Interpolation::None)
@@ -436,11 +448,13 @@ NB_MODULE(_core, m) {
                      [](PyRenderScene &s, float v) { s.scene.scale = v; })
         .def_prop_ro("n_objects", [](const PyRenderScene &s) { return s.scene.objects.size(); });
 
-    m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none());
+    m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none(),
+          "nice"_a = 0);
 
     nb::class_<SurfelTree>(m, "SurfelTree")
         .def(nb::new_(&make_tree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),
-             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0)
+             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0,
+             "poll"_a.none() = nb::none())
         .def_prop_ro("memory_bytes", &SurfelTree::memory_bytes)
         .def_prop_ro("build_seconds", &SurfelTree::build_seconds)
         .def_prop_ro("depth", &SurfelTree::depth)

@@ -417,7 +417,7 @@ private:
 }  // namespace
 
 bool render(const RenderScene &scene, const CameraModel &camera, const RenderSettings &settings,
-            FrameBuffers &out, RenderStats &stats, const std::atomic<bool> &cancel) {
+            FrameBuffers &out, RenderStats &stats, Progress &progress) {
     const int w = camera.width, h = camera.height;
     const size_t np = size_t(w) * size_t(h);
     out.color.assign(3 * np, 0.f);
@@ -432,6 +432,7 @@ bool render(const RenderScene &scene, const CameraModel &camera, const RenderSet
     const int tile = std::max(1, thread_safe ? settings.tile : settings.tile * 4);
     const int tx = (w + tile - 1) / tile, ty = (h + tile - 1) / tile;
     stats.tiles_total = uint64_t(tx) * uint64_t(ty);
+    progress.total = stats.tiles_total;
     const float scale = scene.scale > 0.f ? scene.scale : 1.f;
     const int threads = thread_safe ? settings.threads : 1;
     std::vector<std::unique_ptr<TileRenderer>> workers(size_t(resolve_threads(threads)));
@@ -442,9 +443,10 @@ bool render(const RenderScene &scene, const CameraModel &camera, const RenderSet
             int x0 = int(t % size_t(tx)) * tile, y0 = int(t / size_t(tx)) * tile;
             tr->render_tile(x0, y0, std::min(w, x0 + tile), std::min(h, y0 + tile), out);
             stats.tiles_done += 1;
+            progress.advance();
         }
-    }, &cancel);
-    return !cancel.load();
+    }, &progress.cancel);
+    return !progress.cancelled();
 }
 
 }  // namespace pointviz

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
+from ..interrupt import stage
 
 
 def add_input_options(p) -> None:
@@ -76,12 +77,17 @@ def parse_lights(specs):
     return lights
 
 
-def make_scene_and_camera(args):
-    """Scene and camera from the common options."""
+def make_scene_and_camera(args, prepare: bool = True):
+    """Scene and camera from the common options; with ``prepare``, normals, radii and trees are
+    made now (:func:`prepare_scene`), else on first use (the viewer: on its worker thread, after
+    the window is up)."""
+    from .. import rendering  # noqa: F401 - the core and numpy, before the first stage
     from ..camera import Camera
     from ..scene import Scene
 
+    stage("imported")
     loaded, demo_camera = load_input(args)
+    stage("loaded")
     lights = parse_lights(args.light)
     kw = {}
     if args.interpolation:
@@ -109,7 +115,25 @@ def make_scene_and_camera(args):
         w = args.width or int(round(camera.width * (args.height / camera.height)))
         h = args.height or int(round(camera.height * (args.width / camera.width)))
         camera = camera.with_size(w, h)
+    if prepare:
+        from ..rendering import check_render_options
+
+        check_render_options(**render_kwargs(args))  # bad options fail before the trees
+        prepare_scene(scene)
     return scene, camera
+
+
+def prepare_scene(scene) -> None:
+    """Estimate missing normals and radii, then build every surfel tree, now: each step ends at
+    a named stage (:func:`pointviz.interrupt.stage`), where Ctrl-C takes effect."""
+    for obj in scene.objects:
+        cloud = getattr(obj.geometry, "cloud", obj.geometry)
+        if hasattr(cloud, "points"):
+            _ = cloud.normals, cloud.radii
+    stage("normals")
+    for i in range(len(scene.objects)):
+        scene.surfel_scene(i)
+    stage("built")
 
 
 def render_kwargs(args) -> dict:

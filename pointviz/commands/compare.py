@@ -3,6 +3,15 @@ rendered with the same shading, scored against a reference; writes DIR/index.htm
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from ..errors import InputError
+from ..interrupt import stage
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser("compare", help="quality/speed report: surfels vs reconstructed meshes",
@@ -30,11 +39,10 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..comparison import compare
     from ..comparison.run import Settings
-    from ..errors import InputError
 
-    from pathlib import Path
-
-    existing = Path(args.output) / "index.html"
+    stage("imported")
+    output = Path(args.output)
+    existing = output / "index.html"
     if existing.exists() and not args.overwrite:
         raise FileExistsError(f"{existing}: a report is already there; pass --overwrite to replace it")
     settings = Settings.quick() if args.quick else Settings.full()
@@ -45,8 +53,32 @@ def run(args) -> int:
                 raise InputError(f"--{key.replace('_', '-')}: expected a positive integer, got {value}")
             setattr(settings, key, value)
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
-    doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=args.output,
-                  methods=methods, quick=args.quick, stability=args.stability, settings=settings,
-                  overwrite=args.overwrite)
-    print(f"wrote {doc['report']} ({len(doc['entries'])} method settings)")
+    with staged_folder(output, args.overwrite) as staging:
+        doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=staging,
+                      methods=methods, quick=args.quick, stability=args.stability,
+                      settings=settings, overwrite=args.overwrite)
+    print(f"wrote {existing} ({len(doc['entries'])} method settings)")
     return 0
+
+
+@contextlib.contextmanager
+def staged_folder(output: Path, overwrite: bool):
+    """A hidden folder beside ``output`` to write a report into. Its files move into ``output``
+    only once the report is complete: Ctrl-C or an error leaves ``output`` as it was and no
+    temporary folder behind."""
+    if output.exists() and not output.is_dir():
+        raise InputError(f"{output}: is a file, not a folder")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".part", dir=output.parent))
+    try:
+        yield staging
+        stage("writing")
+        files = sorted(p.relative_to(staging) for p in staging.rglob("*") if p.is_file())
+        clash = [f for f in files if (output / f).exists()]
+        if clash and not overwrite:
+            raise FileExistsError(f"{output / clash[0]}: exists; pass --overwrite to replace it")
+        for f in files:
+            (output / f).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / f, output / f)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)

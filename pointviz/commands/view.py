@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import sys
 
+from ..interrupt import cancelled, check
 from .common import add_input_options, add_render_options, denoise_default, make_scene_and_camera
 
 #: Leave the process without Python's teardown once the Open3D window has closed and every
@@ -43,7 +44,7 @@ def run(args) -> int:
     from ..viewer import view
     from ..viewer.model import DEFAULT_PREVIEW_MAX_POINTS
 
-    scene, camera = make_scene_and_camera(args)
+    scene, camera = make_scene_and_camera(args, prepare=False)
     overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
                  "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
                  "denoise": denoise_default(args),
@@ -54,10 +55,14 @@ def run(args) -> int:
     view(scene, args.backend, camera=given_camera, render=args.render,
                   screenshot=args.screenshot, frame=args.frame, report=args.report,
                   overwrite=args.overwrite, **overrides)
-    if args.screenshot:
+    interrupted = cancelled()  # Ctrl-C in the terminal closed the window
+    if args.screenshot and not interrupted:
         print(f"{args.screenshot}: screenshot of the viewer")
     if args.backend == "open3d" and EXIT_WITHOUT_TEARDOWN:
+        if interrupted:
+            print("pointviz: interrupted", file=sys.stderr)
         sys.stdout.flush()
         sys.stderr.flush()
-        os._exit(0)
+        os._exit(130 if interrupted else 0)
+    check()
     return 0

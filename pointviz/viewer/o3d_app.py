@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import interrupt
 from ..errors import InputError, require
 from . import model
 from .worker import RenderWorker
@@ -143,6 +144,7 @@ class O3DViewer:
         self._point_size = None
         self._last_view = None
         self._first_tick = None
+        self._closing = False
         self.worker = RenderWorker(self._post_progress, self._post_done, self._post_error)
 
         lo, hi = (np.asarray(b, dtype=np.float64) for b in scene.bounds())
@@ -454,6 +456,10 @@ class O3DViewer:
 
     def _on_tick(self) -> bool:
         now = time.monotonic()
+        if interrupt.cancelled() and not self._closing:  # Ctrl-C in the CLI's terminal
+            self._closing = True
+            self.app.post_to_main_thread(self.window, self.window.close)
+            return False
         if self._first_tick is None:
             self._first_tick = now
             self.timings["first_preview_s"] = now - self.t_start

@@ -9,6 +9,7 @@ on the GUI thread). Cancellation is a :class:`threading.Event` handed to
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -20,6 +21,12 @@ from ..errors import CancelledError
 PROGRESS_INTERVAL_S = 0.2
 #: How long :meth:`RenderWorker.shutdown` waits for the thread by default, seconds.
 SHUTDOWN_TIMEOUT_S = 10.0
+#: Trace at a lower CPU priority (``render(background=True)``) and, unless the settings name a
+#: thread count, on all cores but CORES_LEFT_TO_THE_GUI: the GUI thread then gets a core as soon
+#: as it has work. Of the four combinations, this one kept GUI calls fastest both idle and with
+#: every core busy (benchmarks/bench_viewer.py; README there).
+RENDER_IN_BACKGROUND = True
+CORES_LEFT_TO_THE_GUI = 1
 
 
 @dataclass
@@ -143,15 +150,17 @@ class RenderWorker:
             scene = render_scene(job.scene, job.settings)
             if cancel.is_set():
                 raise CancelledError("render cancelled")
-            frame = render_fn(scene, job.camera, progress=progress, cancel=cancel,
-                              **job.settings.render_kwargs())
+            kwargs = dict(job.settings.render_kwargs(), background=RENDER_IN_BACKGROUND)
+            if kwargs.get("threads") is None:
+                kwargs["threads"] = max(1, (os.cpu_count() or 1) - CORES_LEFT_TO_THE_GUI)
+            frame = render_fn(scene, job.camera, progress=progress, cancel=cancel, **kwargs)
             result = RenderResult(frame, 0.0)
             if job.compare:
                 mesh_scene, result.mesh_note = mesh_scene_of(scene)
                 if cancel.is_set():
                     raise CancelledError("render cancelled")
                 result.mesh_frame = render_fn(mesh_scene, job.camera, progress=progress,
-                                              cancel=cancel, **job.settings.render_kwargs())
+                                              cancel=cancel, **kwargs)
         except BaseException as exc:  # noqa: BLE001 - every failure goes back to the GUI
             self._on_error(job.job_id, exc)
             return

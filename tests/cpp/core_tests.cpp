@@ -431,6 +431,41 @@ void test_lod_and_interpolation_are_clean() {
         }
 }
 
+/// A geometry that cancels the render from inside its first query: the cancel lands while
+/// every worker is mid-tile (what Ctrl-C does), deterministically.
+class CancellingGeometry final : public Geometry {
+public:
+    CancellingGeometry(std::shared_ptr<const Geometry> inner, Progress &p) : inner_(std::move(inner)), p_(p) {}
+    void intersect(const Ray *rays, size_t n, SurfaceHit *hits) const override {
+        p_.cancel = true;
+        inner_->intersect(rays, n, hits);
+    }
+    void occluded(const Ray *rays, size_t n, uint8_t *hit) const override { inner_->occluded(rays, n, hit); }
+
+private:
+    std::shared_ptr<const Geometry> inner_;
+    Progress &p_;
+};
+
+/// Cancelled in the middle: every worker finishes its tile and stops, the call returns false
+/// with all its threads joined (ASan checks that nothing touches freed buffers afterwards).
+void test_render_cancelled_midway(RenderScene scene, CameraModel cam, RenderSettings set) {
+    cam.width = 160;   // 10 x 8 tiles: far more than workers
+    cam.height = 128;
+    const auto plain = scene.objects[0].geometry;
+    for (int threads : {1, 2, 4}) {
+        set.threads = threads;
+        Progress p;
+        scene.objects[0].geometry = std::make_shared<CancellingGeometry>(plain, p);
+        auto fb = std::make_unique<FrameBuffers>();
+        RenderStats st;
+        CHECK(!render(scene, cam, set, *fb, st, p), "threads %d: a render cancelled midway reported success", threads);
+        CHECK(p.done <= uint64_t(threads) && p.done < p.total, "threads %d: %llu of %llu tiles after the cancel",
+              threads, (unsigned long long)p.done.load(), (unsigned long long)p.total.load());
+        fb.reset();  // the buffers go while nothing may use them any more
+    }
+}
+
 /// A scene with two surfel objects, a ground, lights of every type.
 void test_render() {
     std::mt19937_64 g(71);
@@ -488,11 +523,11 @@ void test_render() {
     set.reflections = 2;
     FrameBuffers fb1, fb2;
     RenderStats s1, s2;
-    std::atomic<bool> no{false};
+    Progress p1, p2;
     set.threads = 1;
-    bool ok1 = render(scene, cam, set, fb1, s1, no);
+    bool ok1 = render(scene, cam, set, fb1, s1, p1);
     set.threads = 2;
-    bool ok2 = render(scene, cam, set, fb2, s2, no);
+    bool ok2 = render(scene, cam, set, fb2, s2, p2);
     CHECK(ok1 && ok2, "render returned cancelled");
     CHECK(fb1.color == fb2.color && fb1.alpha == fb2.alpha, "render depends on thread count");
     size_t hit = 0;
@@ -512,18 +547,23 @@ void test_render() {
     CHECK(hit > fb1.alpha.size() / 4, "only %zu of %zu pixels hit", hit, fb1.alpha.size());
     CHECK(s1.tiles_done == s1.tiles_total, "tiles %llu of %llu", (unsigned long long)s1.tiles_done.load(),
           (unsigned long long)s1.tiles_total);
+    CHECK(p1.done == s1.tiles_total && p1.total == s1.tiles_total, "progress %llu of %llu",
+          (unsigned long long)p1.done.load(), (unsigned long long)p1.total.load());
     // Cancelled before the start: returns false, touches no tile.
-    std::atomic<bool> yes{true};
+    Progress cancelled;
+    cancelled.cancel = true;
     FrameBuffers fb3;
     RenderStats s3;
-    CHECK(!render(scene, cam, set, fb3, s3, yes), "a cancelled render reported success");
+    CHECK(!render(scene, cam, set, fb3, s3, cancelled), "a cancelled render reported success");
     CHECK(s3.tiles_done == 0, "cancelled render did %llu tiles", (unsigned long long)s3.tiles_done.load());
+    test_render_cancelled_midway(scene, cam, set);
     // A 1x1 frame and a camera inside the sphere.
     cam.width = cam.height = 1;
     cam.eye = {0, 0, 0};
     FrameBuffers fb4;
     RenderStats s4;
-    CHECK(render(scene, cam, set, fb4, s4, no) && std::isfinite(fb4.color[0]), "1x1 render");
+    Progress p4;
+    CHECK(render(scene, cam, set, fb4, s4, p4) && std::isfinite(fb4.color[0]), "1x1 render");
 }
 
 void test_empty_and_oversized_builds_throw() {
@@ -536,6 +576,17 @@ void test_empty_and_oversized_builds_throw() {
         threw = true;
     }
     CHECK(threw, "a tree of zero surfels did not throw invalid_argument");
+    // One more surfel than a tree can index: refused before any input is read (the arrays
+    // are null, so a read would crash under the sanitizers).
+    SurfelArrays big;
+    big.n = size_t(kMaxTreeSurfels);
+    bool threw_big = false;
+    try {
+        SurfelTree t(big, origin, BuildOptions{});
+    } catch (const std::length_error &) {
+        threw_big = true;
+    }
+    CHECK(threw_big, "a tree of 2^27 surfels did not throw length_error");
 }
 
 }  // namespace

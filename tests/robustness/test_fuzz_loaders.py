@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import queue
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -27,8 +28,12 @@ from . import samples as S
 #: Cases in the default run (about 5 s) and in the slow one.
 N_CASES_DEFAULT = 240
 N_CASES_SLOW = 3000
-#: Seconds one load may take before it counts as a hang (generous: the machine is shared).
-CASE_TIMEOUT = 30.0
+#: CPU seconds one load may use before it counts as a hang (a loop that never ends). The worker
+#: enforces it with RLIMIT_CPU, which counts the work done, not how long a busy machine took.
+CASE_CPU_S = 30
+#: Wall seconds without any output from the worker before it counts as blocked forever (a
+#: deadlock uses no CPU): only a backstop, far above any load on a busy machine.
+BLOCKED_TIMEOUT_S = 600.0
 #: Address-space limit of the worker: Open3D and laspy fit with room to spare; a loader that
 #: believes a lying header fails to allocate instead of exhausting the machine.
 WORKER_MEMORY_LIMIT = 6 << 30
@@ -48,8 +53,12 @@ from pointviz.io import load
 from pointviz.errors import PointvizError
 paths = open(sys.argv[1]).read().split("\n")
 start = int(sys.argv[3])
+cpu_budget = int(sys.argv[4])
 for i in range(start, len(paths)):
     print(f"S {i}", flush=True)
+    used = resource.getrusage(resource.RUSAGE_SELF)
+    limit = int(used.ru_utime + used.ru_stime) + 1 + cpu_budget  # SIGXCPU past it
+    resource.setrlimit(resource.RLIMIT_CPU, (limit, resource.RLIM_INFINITY))
     try:
         cloud = load(paths[i])
         ok = len(cloud) > 0 and cloud.normals.shape == (len(cloud), 3)
@@ -170,24 +179,27 @@ def run_fuzz(paths: list[Path], list_file: Path) -> dict:
     start = 0
     while start < len(paths):
         proc = subprocess.Popen(
-            [sys.executable, "-c", WORKER, str(list_file), str(WORKER_MEMORY_LIMIT), str(start)],
+            [sys.executable, "-c", WORKER, str(list_file), str(WORKER_MEMORY_LIMIT), str(start),
+             str(CASE_CPU_S)],
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         lines: queue.Queue = queue.Queue()
         threading.Thread(target=_pump, args=(proc.stdout, lines), daemon=True).start()
         current, restart = None, None
         while True:
             try:
-                line = lines.get(timeout=CASE_TIMEOUT + (20 if current is None else 0))
+                line = lines.get(timeout=BLOCKED_TIMEOUT_S)
             except queue.Empty:
                 proc.kill()
-                problems.append(f"hang: {paths[current].name if current is not None else 'start'}")
+                problems.append(f"blocked: {paths[current].name if current is not None else 'start'}")
                 restart = (current if current is not None else start) + 1
                 break
             if line is None:  # the worker died
                 proc.wait()
                 if current is None:
                     raise RuntimeError("the fuzz worker failed to start")
-                problems.append(f"crash (exit {proc.returncode}): {paths[current].name}")
+                what = (f"hang (over {CASE_CPU_S} CPU s)" if proc.returncode == -signal.SIGXCPU
+                        else f"crash (exit {proc.returncode})")
+                problems.append(f"{what}: {paths[current].name}")
                 restart = current + 1
                 break
             f = line.split()

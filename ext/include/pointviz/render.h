@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "pointviz/geometry.h"
+#include "pointviz/progress.h"
 
 namespace pointviz {
 
@@ -141,10 +142,10 @@ struct RenderScene {
     float scale = 1.f;   ///< size of the scene (bounding radius): floor of ray offsets
 };
 
-/// Renders a frame. Deterministic for a given seed whatever the thread count. `cancel` stops it
-/// between tiles (the buffers are then incomplete: callers must discard them). Returns false
-/// when cancelled.
+/// Renders a frame. Deterministic for a given seed whatever the thread count. `progress` counts
+/// tiles (`total` is set first); its cancel flag stops the render between tiles (the buffers are
+/// then incomplete: callers must discard them). Returns false when cancelled.
 bool render(const RenderScene &scene, const CameraModel &camera, const RenderSettings &settings,
-            FrameBuffers &out, RenderStats &stats, const std::atomic<bool> &cancel);
+            FrameBuffers &out, RenderStats &stats, Progress &progress);
 
 }  // namespace pointviz
