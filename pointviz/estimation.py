@@ -36,10 +36,12 @@ from .errors import InputError
 NORMAL_K_MIN = 8
 NORMAL_K_MAX = 32
 # Standard errors within which a larger neighbourhood's normal must agree with every smaller
-# one's to be used. Measured on noisy analytic shapes (tests/test_estimation.py): 2 keeps the
-# error on a sphere at 0.4 % noise within 10 % of the best fixed size for that noise, while
-# no fixed size is best at both 0 and 0.4 % noise.
-NORMAL_CONFIDENCE = 2.0
+# one's to be used (the noise level is the median residual variance of the first ring). Mean
+# errors measured on a random torus sampling, clean / 40 % of the spacing noise, a clean box and
+# virtual scans of a torus at 0.4 % noise (tests/test_estimation.py, benchmarks): 1.52 / 2.73 /
+# 2.33 / 5.31 degrees at 3; fixed k = 8: 1.77 / 13.8 / 1.35 / 29.3; k = 32: 1.40 / 2.64 / 3.63 /
+# 5.01. 2 stops too early in noise (3.70 on the noisy torus), 4 hardly adapts on edges.
+NORMAL_CONFIDENCE = 3.0
 # The fixed neighbourhood size of earlier versions (k=...) and of callers that ask for one.
 NORMAL_K = 16
 
@@ -49,12 +51,14 @@ NORMAL_K = 16
 ORIENT_K = 8
 
 # Weight of the neighbour distance (in units of the median spacing) added to the Hoppe edge cost
-# 1 - |n_i . n_j| (in the core: OrientOptions::distance_weight).
+# 1 - |n_i . n_j|: on flat parts that cost is ~0 for every edge, and short edges must win ties.
 ORIENT_DISTANCE_WEIGHT = 0.1
 
 # A component whose normals point outward for a fraction in [0.5 - m, 0.5 + m] is "undecided"
-# (an open, flat patch such as terrain); with an ``up`` hint it is oriented to face up instead.
-OUTWARD_UNDECIDED_MARGIN = 0.1
+# (an open patch such as terrain); with an ``up`` hint it is oriented to face up instead. Terrain
+# is rarely flat: lidar/simple.las (a shallow valley) votes 0.605 for facing down, while closed
+# scans vote > 0.8 for their outside.
+OUTWARD_UNDECIDED_MARGIN = 0.2
 
 # The spacing radius of a point comes from the distance to its RADIUS_K-th nearest neighbour (not
 # counting itself): the 8th reaches past the first ring, so one close neighbour does not collapse
@@ -77,11 +81,14 @@ COVER_MARGIN = 1.2
 COVER_CAP = 1.0
 COVER_GLOBAL_CAP = 4.0
 
-# Surface fit (the core's FitOptions). A quadric over at least FIT_MIN_SUPPORT points, reweighted
-# FIT_ROBUST_PASSES times with Welsch weights FIT_ROBUST_WIDTH RMS residuals wide; then a point is
-# dropped when a kept one lies within FIT_THIN x its spacing in its own scan.
+# Surface fit (the core's FitOptions, where the measurements behind these are). FIT_PASSES fits,
+# each on the previous one's output (planes, then a quadric), over at least FIT_MIN_SUPPORT
+# points, reweighted FIT_ROBUST_PASSES times with Welsch weights FIT_ROBUST_WIDTH RMS residuals
+# wide; then a point is dropped when a kept one lies within FIT_THIN x its spacing in its own
+# scan.
 FIT_MIN_SUPPORT = 16
-FIT_ROBUST_PASSES = 2
+FIT_PASSES = 2
+FIT_ROBUST_PASSES = 1
 FIT_ROBUST_WIDTH = 2.0
 FIT_THIN = 0.75
 
@@ -122,6 +129,11 @@ def _up(value):
     from .cloud import _unit_vector
 
     return tuple(float(v) for v in _unit_vector("up", value))
+
+
+def _orient(k: int | None = None):
+    """The orientation settings the core takes: (neighbours, edge-length weight, margin)."""
+    return (ORIENT_K if k is None else k, ORIENT_DISTANCE_WEIGHT, OUTWARD_UNDECIDED_MARGIN)
 
 
 def _count(name: str, value, lo: int) -> int:
@@ -218,7 +230,7 @@ def estimate_normals(
         k_min = k_max = max(3, _count("k", k, 3))
     out = _core().estimate_normals(
         pts, _viewpoints(viewpoints, n), _up(up), min(k_min, n), min(k_max, n),
-        NORMAL_CONFIDENCE, ORIENT_K, _threads(threads),
+        NORMAL_CONFIDENCE, _orient(), _threads(threads),
     )
     normals = out.pop("normals")
     if details:
@@ -256,7 +268,7 @@ def orient_normals(points, normals, *, viewpoints=None, up=None, k: int = ORIENT
     pts = _points(points)
     nrm = _normals(normals, len(pts))
     out, _ = _core().orient_normals(pts, nrm, _viewpoints(viewpoints, len(pts)), _up(up),
-                                    _count("k", k, 1), _threads(threads))
+                                    _orient(_count("k", k, 1)), _threads(threads))
     return out.astype(np.float64)
 
 
@@ -377,16 +389,18 @@ class SurfaceFit:
 
 
 def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=None,
-                thin: float = FIT_THIN, quadric: bool = True, threads: int = 0) -> SurfaceFit:
+                thin: float = FIT_THIN, quadric: bool = True, passes: int = FIT_PASSES,
+                robust_passes: int = FIT_ROBUST_PASSES, threads: int = 0) -> SurfaceFit:
     """Move points onto a robust local fit of the surface across all scans; mark the redundant.
 
     Each point's neighbourhood (at least :data:`FIT_MIN_SUPPORT` points, more where the normal
-    estimate chose more) is fitted, in the frame of the point's normal, by a weighted height
-    field ``z = a + b x + c y + d x^2 + e xy + f y^2`` (``quadric=False``: a plane), reweighted
-    against outliers; the point moves to ``(0, 0, a)`` and takes the fit's normal. Then, visiting
-    the points seen most head-on first (by their viewpoints), a point is dropped when a kept
-    point lies within ``thin`` x its spacing in its own scan: where scans overlap about one
-    layer remains, a single scan keeps all its points.
+    estimate chose more) is fitted, in the frame of the point's normal, by a weighted plane,
+    reweighted against outliers; the point moves onto it and takes its normal. ``passes`` fits
+    run in turn, each on the previous one's output; the last fits a height field
+    ``z = a + b x + c y + d x^2 + e xy + f y^2`` (``quadric=False``: a plane again), which does
+    not pull curved parts inward. Then, visiting the points seen most head-on first (by their
+    viewpoints), a point is dropped when a kept point lies within ``thin`` x its spacing in its
+    own scan: where scans overlap about one layer remains, a single scan keeps all its points.
 
     Parameters
     ----------
@@ -404,6 +418,10 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     thin : float
         See above; 0 keeps every point.
     quadric : bool
+    passes : int
+        >= 1 (see :data:`FIT_PASSES`).
+    robust_passes : int
+        Reweightings per fit, >= 0.
     threads : int
 
     Returns
@@ -428,7 +446,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
         raise InputError(f"thin: expected a number in [0, 2], got {thin!r}")
     out = _core().fit_surface(
         pts, nrm, vp, group, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
-        NORMAL_CONFIDENCE, ORIENT_K, FIT_MIN_SUPPORT, bool(quadric), FIT_ROBUST_PASSES,
+        NORMAL_CONFIDENCE, _orient(), FIT_MIN_SUPPORT, bool(quadric), _count("passes", passes, 1),
+        _count("robust_passes", robust_passes, 0),
         FIT_ROBUST_WIDTH, float(thin), _threads(threads),
     )
     return SurfaceFit(points=out["points"], normals=out["normals"], keep=out["keep"].astype(bool),

@@ -7,9 +7,11 @@
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/unique_ptr.h>
+#include <nanobind/stl/tuple.h>
 
 #include <array>
 #include <optional>
+#include <tuple>
 
 #include <memory>
 
@@ -319,9 +321,14 @@ NormalOptions normal_options(uint32_t k_min, uint32_t k_max, double confidence, 
     return o;
 }
 
-OrientOptions orient_options(uint32_t k, std::optional<std::array<double, 3>> up) {
+/// Orientation settings: neighbours linked, the edge-length weight, the undecided margin.
+using OrientArgs = std::tuple<uint32_t, double, double>;
+
+OrientOptions orient_options(const OrientArgs &args, std::optional<std::array<double, 3>> up) {
     OrientOptions o;
-    o.k = k;
+    o.k = std::get<0>(args);
+    o.distance_weight = std::get<1>(args);
+    o.undecided_margin = std::get<2>(args);
     if (up) {
         o.has_up = true;
         for (int a = 0; a < 3; ++a) o.up[a] = (*up)[a];
@@ -542,27 +549,28 @@ NB_MODULE(_core, m) {
 
     m.def("estimate_normals", [](CArray<double> points, std::optional<CArray<double>> viewpoints,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,
-                                 uint32_t k_max, double confidence, uint32_t orient_k, int threads) {
+                                 uint32_t k_max, double confidence, OrientArgs orient, int threads) {
         PointsView v = points_view(points, viewpoints, std::nullopt);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
-        OrientOptions oo = orient_options(orient_k, up);
+        OrientOptions oo = orient_options(orient, up);
         NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
         return normals_dict(o, v.n);
     }, "points"_a, "viewpoints"_a.none(), "up"_a.none(), "k_min"_a, "k_max"_a, "confidence"_a,
-       "orient_k"_a, "threads"_a = 0);
+       "orient"_a, "threads"_a = 0);
 
     m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
                                std::optional<CArray<double>> viewpoints,
-                               std::optional<std::array<double, 3>> up, uint32_t k, int threads) {
+                               std::optional<std::array<double, 3>> up, OrientArgs orient,
+                               int threads) {
         PointsView v = points_view(points, viewpoints, std::nullopt);
         check_normals(normals, v.n);
         std::vector<float> out(normals.data(), normals.data() + 3 * v.n);
-        OrientOptions oo = orient_options(k, up);
+        OrientOptions oo = orient_options(orient, up);
         OrientResult r = run_step([&](Progress &pr) {
             return orient_points(v, out.data(), oo, threads, pr);
         });
         return nb::make_tuple(to_array(out, {v.n, 3}), r.components);
-    }, "points"_a, "normals"_a, "viewpoints"_a.none(), "up"_a.none(), "k"_a, "threads"_a = 0);
+    }, "points"_a, "normals"_a, "viewpoints"_a.none(), "up"_a.none(), "orient"_a, "threads"_a = 0);
 
     m.def("coverage_radii", [](CArray<double> points, CArray<float> normals, uint32_t k,
                                uint32_t directions, double margin, double cap, double global_cap,
@@ -586,16 +594,17 @@ NB_MODULE(_core, m) {
                             std::optional<CArray<double>> viewpoints,
                             std::optional<CArray<int32_t>> scan_index,
                             std::optional<std::array<double, 3>> up, uint32_t k_min, uint32_t k_max,
-                            double confidence, uint32_t orient_k, uint32_t min_support,
-                            bool quadric, int robust_passes, double robust_width, double thin,
-                            int threads) {
+                            double confidence, OrientArgs orient, uint32_t min_support,
+                            bool quadric, int passes, int robust_passes, double robust_width,
+                            double thin, int threads) {
         PointsView v = points_view(points, viewpoints, scan_index);
         if (normals) check_normals(*normals, v.n);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
-        OrientOptions oo = orient_options(orient_k, up);
+        OrientOptions oo = orient_options(orient, up);
         FitOptions fo;
         fo.min_support = min_support;
         fo.quadric = quadric;
+        fo.passes = passes;
         fo.robust_passes = robust_passes;
         fo.robust_width = robust_width;
         fo.thin = thin;
@@ -613,6 +622,6 @@ NB_MODULE(_core, m) {
         if (!nrm) d["estimate"] = normals_dict(o.normals, v.n);
         return d;
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
-       "k_min"_a, "k_max"_a, "confidence"_a, "orient_k"_a, "min_support"_a, "quadric"_a,
-       "robust_passes"_a, "robust_width"_a, "thin"_a, "threads"_a = 0);
+       "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,
+       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "threads"_a = 0);
 }

@@ -84,6 +84,68 @@ double dist2(const double *a, const double *b) {
            (a[2] - b[2]) * (a[2] - b[2]);
 }
 
+/// Scratch space of one worker.
+struct FitScratch {
+    std::vector<double> u, v, z, ws, w;
+};
+
+/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
+/// writes the projected position and the fit's normal. False: the fit failed or asked for a
+/// move beyond the neighbourhood.
+bool fit_point(const double *points, const float *normals, size_t i, const uint32_t *row,
+               uint32_t k, const FitOptions &opt, bool quadric, FitScratch &s, double *out_p,
+               float *out_n) {
+    const double *p = points + 3 * i;
+    double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
+    if (!(h2 > 0)) return false;
+    double h = std::sqrt(h2);
+    double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
+    tangent_basis(nn, t1, t2);
+    std::vector<double> &u = s.u, &v = s.v, &z = s.z, &ws = s.ws, &w = s.w;
+    u.assign(k, 0.0), v.assign(k, 0.0), z.assign(k, 0.0), ws.assign(k, 1.0);
+    for (uint32_t m = 0; m + 1 < k; ++m) {  // entry 0 is the point itself
+        const double *q = points + 3 * size_t(row[m]);
+        double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
+        u[m + 1] = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
+        v[m + 1] = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
+        z[m + 1] = (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h;
+        double t = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
+        ws[m + 1] = t * t;
+    }
+    w = ws;
+    int terms = quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;
+    double c[kMaxTerms];
+    bool ok = fit_terms(u, v, z, w, terms, c);
+    if (!ok && terms == kMaxTerms) ok = fit_terms(u, v, z, w, terms = 3, c);
+    for (int pass = 0; ok && pass < opt.robust_passes; ++pass) {
+        double sr = 0, sw = 0;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
+            sr += w[j] * r * r;
+            sw += w[j];
+        }
+        double s2 = sr / sw * opt.robust_width * opt.robust_width;
+        if (!(s2 > 0)) break;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
+            w[j] = ws[j] * std::exp(-r * r / s2);
+        }
+        double prev[kMaxTerms];
+        std::copy(c, c + terms, prev);
+        if (!fit_terms(u, v, z, w, terms, c)) std::copy(prev, prev + terms, c);
+    }
+    // the fit at the point's own tangential position: height a, slopes (b, c)
+    if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) return false;
+    double g[3];
+    for (int a = 0; a < 3; ++a) g[a] = nn[a] - c[1] * t1[a] - c[2] * t2[a];
+    double gl = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    for (int a = 0; a < 3; ++a) {
+        out_p[a] = p[a] + c[0] * h * nn[a];
+        out_n[a] = float(g[a] / gl);
+    }
+    return true;
+}
+
 }  // namespace
 
 FitResult fit_surface(const double *points, const float *normals, const uint32_t *support,
@@ -100,65 +162,40 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     if (n == 0 || nb.k < 2) return res;
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     std::vector<uint8_t> moved(n, 0);
+    // each pass fits the previous pass's positions and normals (the first: the input's): the
+    // noise left after one fit is ~1/sqrt(support) of the input's, so the next fit's normals
+    // are that much better, and the surface is fitted over a wider effective support
+    std::vector<double> src_p;
+    std::vector<float> src_n;
     constexpr size_t kGrain = 1024;
-    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        std::vector<double> u, v, z, ws, w, coefbuf(kMaxTerms);
-        for (size_t i = b; i < e; ++i) {
-            const double *p = points + 3 * i;
-            uint32_t k = std::max<uint32_t>(support ? support[i] : opt.min_support, opt.min_support);
-            k = std::min<uint32_t>(k, nb.k + 1);
-            const uint32_t *row = nb.row(i);
-            double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
-            if (!(h2 > 0)) continue;
-            double h = std::sqrt(h2);
-            double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
-            tangent_basis(nn, t1, t2);
-            u.assign(k, 0.0), v.assign(k, 0.0), z.assign(k, 0.0), ws.assign(k, 1.0);
-            for (uint32_t m = 0; m + 1 < k; ++m) {  // entry 0 is the point itself
-                const double *q = points + 3 * size_t(row[m]);
-                double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
-                u[m + 1] = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
-                v[m + 1] = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
-                z[m + 1] = (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h;
-                double s = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
-                ws[m + 1] = s * s;
-            }
-            w = ws;
-            int terms = opt.quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;
-            double *c = coefbuf.data();
-            bool ok = fit_terms(u, v, z, w, terms, c);
-            if (!ok && terms == kMaxTerms) ok = fit_terms(u, v, z, w, terms = 3, c);
-            for (int pass = 0; ok && pass < opt.robust_passes; ++pass) {
-                double sr = 0, sw = 0;
-                for (uint32_t j = 0; j < k; ++j) {
-                    double r = z[j] - eval_terms(c, terms, u[j], v[j]);
-                    sr += w[j] * r * r;
-                    sw += w[j];
-                }
-                double s2 = sr / sw * opt.robust_width * opt.robust_width;
-                if (!(s2 > 0)) break;
-                for (uint32_t j = 0; j < k; ++j) {
-                    double r = z[j] - eval_terms(c, terms, u[j], v[j]);
-                    w[j] = ws[j] * std::exp(-r * r / s2);
-                }
-                double keep[kMaxTerms];
-                std::copy(c, c + terms, keep);
-                if (!fit_terms(u, v, z, w, terms, c)) std::copy(keep, keep + terms, c);
-            }
-            // the fit at the point's own tangential position: height a, slopes (b, c)
-            if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) continue;  // moves beyond support
-            double g[3];
-            for (int a = 0; a < 3; ++a) g[a] = nn[a] - c[1] * t1[a] - c[2] * t2[a];
-            double gl = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-            for (int a = 0; a < 3; ++a) {
-                res.points[3 * i + a] = p[a] + c[0] * h * nn[a];
-                res.normals[3 * i + a] = float(g[a] / gl);
-            }
-            res.shift[i] = float(std::fabs(c[0]) * h);
-            moved[i] = 1;
+    int passes = std::max(opt.passes, 1);
+    if (progress) progress->total.fetch_add(n * size_t(passes - 1), std::memory_order_relaxed);
+    for (int pass = 0; pass < passes; ++pass) {
+        const double *sp = points;
+        const float *sn = normals;
+        if (pass > 0) {
+            src_p = res.points;
+            src_n = res.normals;
+            sp = src_p.data();
+            sn = src_n.data();
         }
-        if (progress) progress->advance(e - b);
-    }, progress ? &progress->cancel : nullptr);
+        bool quadric = opt.quadric && pass == passes - 1;
+        parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+            FitScratch scratch;
+            for (size_t i = b; i < e; ++i) {
+                uint32_t k = std::max<uint32_t>(support ? support[i] : opt.min_support,
+                                                opt.min_support);
+                k = std::min<uint32_t>(k, nb.k + 1);
+                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, scratch, &res.points[3 * i],
+                              &res.normals[3 * i]))
+                    moved[i] |= 1;
+            }
+            if (progress) progress->advance(e - b);
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+    }
+    for (size_t i = 0; i < n; ++i)
+        res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
     check_cancel(progress);
     res.unmoved = n - size_t(std::count(moved.begin(), moved.end(), uint8_t(1)));
     // spacing of each point within its own scan: its nearest neighbour from the same scan

@@ -19,9 +19,16 @@ constexpr double kWeightReach = 1.5;
 
 struct Fit {
     Principal axes;
-    double var = 0;     ///< squared angular standard error of the normal (radians^2)
+    double sigma2 = 0;  ///< residual variance about the plane (degrees-of-freedom corrected)
+    double gain = 0;    ///< squared angular standard error of the normal per unit sigma2
     double spread = 0;  ///< RMS distance from the plane
+    uint32_t distinct = 1;  ///< distinct positions (distinct distances from the point)
 };
+
+/// A plane through a few positions fits them exactly whatever the surface does: a
+/// neighbourhood needs this many distinct positions to count (stacks of duplicates can fill
+/// the smallest neighbourhoods with two or three).
+constexpr uint32_t kMinDistinct = 6;
 
 /// Weighted plane of point i and its first k - 1 neighbours.
 Fit fit_plane(const double *points, size_t i, const uint32_t *row, uint32_t k) {
@@ -36,10 +43,16 @@ Fit fit_plane(const double *points, size_t i, const uint32_t *row, uint32_t k) {
     rel(row[k - 2], far);
     double h2 = kWeightReach * kWeightReach * (far[0] * far[0] + far[1] * far[1] + far[2] * far[2]);
     double s0 = 1.0, s1[3] = {0, 0, 0}, s2[6] = {0, 0, 0, 0, 0, 0}, sw2 = 1.0;  // the point: w = 1
+    uint32_t distinct = 1;
+    double prev[3] = {0.0, 0.0, 0.0};
     for (uint32_t m = 0; m + 1 < k; ++m) {
         double x[3];
         rel(row[m], x);
         double d2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+        // rows are sorted by distance, then index: copies of one position are adjacent unless
+        // another position lies at exactly the same distance (then this overcounts a little)
+        distinct += x[0] != prev[0] || x[1] != prev[1] || x[2] != prev[2];
+        prev[0] = x[0], prev[1] = x[1], prev[2] = x[2];
         double u = h2 > 0 ? 1.0 - d2 / h2 : 1.0;
         double w = u * u;
         s0 += w;
@@ -56,13 +69,16 @@ Fit fit_plane(const double *points, size_t i, const uint32_t *row, uint32_t k) {
     double cov[6] = {s2[0] / s0 - c[0] * c[0], s2[1] / s0 - c[0] * c[1], s2[2] / s0 - c[0] * c[2],
                      s2[3] / s0 - c[1] * c[1], s2[4] / s0 - c[1] * c[2], s2[5] / s0 - c[2] * c[2]};
     Fit f;
+    f.distinct = distinct;
     f.axes = principal_axes(cov, kPlanarMinGap);
+    f.axes.ok = f.axes.ok && distinct >= kMinDistinct;
     double l0 = std::max(f.axes.l0, 0.0);
     f.spread = std::sqrt(l0);
     if (f.axes.ok) {
         // slope variance of a least-squares plane: residual variance / (n_eff * tangent spread)
-        double n_eff = s0 * s0 / sw2;
-        f.var = l0 / n_eff * (1.0 / f.axes.l1 + 1.0 / f.axes.l2);
+        double n_eff = std::min(s0 * s0 / sw2, double(distinct));
+        f.sigma2 = l0 * n_eff / std::max(n_eff - 3.0, 1.0);
+        f.gain = (1.0 / f.axes.l1 + 1.0 / f.axes.l2) / n_eff;
     }
     return f;
 }
@@ -98,9 +114,27 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 1024;
     double gamma2 = opt.confidence * opt.confidence;
+    // pass 1: the residual variance of every point's smallest neighbourhood
+    uint32_t k0 = sizes.front();
+    std::vector<double> sigma2(n, 0.0);
+    if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) sigma2[i] = fit_plane(points, i, nb.row(i), k0).sigma2;
+        if (progress) progress->advance(e - b);
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    // pass 2: grow each neighbourhood while its normal agrees with every smaller one's
+    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        std::vector<double> local(k0);
         for (size_t i = b; i < e; ++i) {
             const uint32_t *row = nb.row(i);
+            // the noise level: the median residual variance around the point. One small
+            // neighbourhood's own can be near 0 by chance (a few noisy samples may happen to lie
+            // on a plane); the median over the first ring is not.
+            local[0] = sigma2[i];
+            for (uint32_t m = 0; m + 1 < k0; ++m) local[m + 1] = sigma2[row[m]];
+            std::nth_element(local.begin(), local.begin() + k0 / 2, local.end());
+            double noise2 = local[k0 / 2];
             Fit best;
             uint32_t best_k = 0;
             Fit accepted[16];
@@ -114,7 +148,7 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
                 bool agrees = true;
                 for (int a = 0; a < n_acc && agrees; ++a)
                     agrees = sin2(f.axes.n, accepted[a].axes.n) <=
-                             gamma2 * (f.var + accepted[a].var) + kAngleRounding;
+                             gamma2 * noise2 * (f.gain + accepted[a].gain) + kAngleRounding;
                 if (!agrees) break;
                 if (n_acc < 16) accepted[n_acc++] = f;
                 best = f;

@@ -12,6 +12,9 @@ namespace pointviz {
 
 namespace {
 
+/// Most directions sampled per cell.
+constexpr uint32_t kMaxDirections = 64;
+
 /// Linear-interpolated quantile (numpy's default) of the positive values of `v`.
 double quantile(std::vector<float> v, double q) {
     if (v.empty()) return 0.0;
@@ -33,17 +36,19 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     uint32_t k = nb.k;
     std::vector<float> out(n, 0.f);
     if (n == 0 || k == 0) return out;
-    uint32_t nd = std::max<uint32_t>(opt.directions, 3);
-    std::vector<double> cs(nd), sn(nd);
+    uint32_t nd = std::min<uint32_t>(std::max<uint32_t>(opt.directions, 3), kMaxDirections);
+    // directions in float: the cell of each is a min over neighbours of one division, which the
+    // compiler runs 8 directions at a time
+    alignas(32) float cs[kMaxDirections], sn[kMaxDirections];
     for (uint32_t a = 0; a < nd; ++a) {
         double t = 2.0 * M_PI * a / nd;
-        cs[a] = std::cos(t);
-        sn[a] = std::sin(t);
+        cs[a] = float(std::cos(t));
+        sn[a] = float(std::sin(t));
     }
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 4096;
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        std::vector<double> x(k), y(k), r2(k), edge(nd);
+        alignas(32) float edge[kMaxDirections];
         for (size_t i = b; i < e; ++i) {
             const double *p = points + 3 * i;
             double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
@@ -52,27 +57,29 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
             tangent_basis(nn, t1, t2);
             const uint32_t *row = nb.row(i);
             double d1 = 0, dk = 0;
+            const float inf = std::numeric_limits<float>::infinity();
+            for (uint32_t a = 0; a < nd; ++a) edge[a] = inf;
+            // along each direction the cell ends at the nearest perpendicular bisector
             for (uint32_t m = 0; m < k; ++m) {
                 const double *q = points + 3 * size_t(row[m]);
                 double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
-                x[m] = d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2];
-                y[m] = d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2];
-                r2[m] = x[m] * x[m] + y[m] * y[m];
+                float x = float(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]);
+                float y = float(d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]);
+                float r2 = x * x + y * y;
                 double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
                 if (m == 0) d1 = dist;
                 dk = std::max(dk, dist);
-            }
-            // along each direction the cell ends at the nearest perpendicular bisector
-            double cell = 0.0;
-            for (uint32_t a = 0; a < nd; ++a) {
-                double best = std::numeric_limits<double>::infinity();
-                for (uint32_t m = 0; m < k; ++m) {
-                    double proj = x[m] * cs[a] + y[m] * sn[a];
-                    if (r2[m] > 0 && proj > 1e-12 * std::sqrt(r2[m]))
-                        best = std::min(best, r2[m] / (2.0 * proj));
+                if (!(r2 > 0.f)) continue;
+                float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
+                for (uint32_t a = 0; a < nd; ++a) {
+                    float proj = x * cs[a] + y * sn[a];
+                    float s = proj > floor_ ? r2 / (2.f * proj) : inf;
+                    edge[a] = std::min(edge[a], s);
                 }
-                if (std::isfinite(best)) cell = std::max(cell, best);
             }
+            double cell = 0.0;
+            for (uint32_t a = 0; a < nd; ++a)
+                if (edge[a] < inf) cell = std::max(cell, double(edge[a]));
             double r = std::min(opt.margin * cell, opt.cap * dk);
             // isolated or degenerate (no bisector anywhere): from the neighbour distances
             if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);

@@ -20,9 +20,10 @@ struct NormalOptions {
     /// k_min estimates with that one size everywhere.
     uint32_t k_max = 32;
     /// The rule grows the neighbourhood (by 1.5x per step) while its normal stays within
-    /// `confidence` standard errors of every smaller one's; a larger value lets curvature tilt
-    /// normals further, a smaller one stops early in noise.
-    double confidence = 2.0;
+    /// `confidence` standard errors of every smaller one's (standard errors from the local
+    /// noise level: the median residual variance of the first ring); a larger value lets
+    /// curvature and edges tilt normals further, a smaller one stops early in noise.
+    double confidence = 3.0;
     int threads = 0;   ///< 0: all cores
 };
 
@@ -36,8 +37,10 @@ struct NormalResult {
 };
 
 /// Smallest (l1 - l0) / l2 of a neighbourhood for its plane to be defined: below it the
-/// samples lie on a line (or coincide) to within rounding and noise of 1e-6 of their extent.
-constexpr double kPlanarMinGap = 1e-9;
+/// samples lie on a line (or coincide) to within 1e-3 of their extent. The closed-form
+/// eigenvalues of an exact line come out ~1e-8 x l2 apart (acos near 1 amplifies rounding), so
+/// the threshold must stay well above that.
+constexpr double kPlanarMinGap = 1e-6;
 
 /// Normals of `points` ((n, 3), those of the tree `nb` was computed on). Deterministic for
 /// any thread count. Throws Cancelled.

@@ -16,7 +16,7 @@ namespace pointviz {
 struct CoverOptions {
     /// Directions sampled around each point when measuring its cell (underestimates the cell's
     /// radius by at most 1 - cos(pi / 16), 2%).
-    uint32_t directions = 16;
+    uint32_t directions = 16;  // at most 64
     /// Margin over the Voronoi radius: the overlap the interpolation blends over; it absorbs
     /// curvature and the sampled directions' underestimate.
     double margin = 1.2;

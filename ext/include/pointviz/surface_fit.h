@@ -18,12 +18,20 @@ struct FitOptions {
     /// Fewest points in a fit (the point included), even where the normal's neighbourhood was
     /// smaller: a quadric has 6 unknowns, and noise averages down as 1/sqrt(points).
     uint32_t min_support = 16;
-    /// Fit z = a + b x + c y + d x^2 + e xy + f y^2 (true) or a plane (false). The plane pulls
-    /// curved surfaces inward by ~ curvature x support^2 / 4; the quadric does not.
+    /// The last pass fits z = a + b x + c y + d x^2 + e xy + f y^2 (true) or a plane (false),
+    /// earlier passes a plane. A plane pulls curved surfaces inward by ~ curvature x support^2
+    /// / 4, the quadric does not; but on raw points a quadric's normals are noisier (6
+    /// unknowns), so it only fits points the planes have denoised. Measured on virtual scans
+    /// of a torus at 0.1 % noise: mean distance to the surface 0.69e-3 (quadric last) vs
+    /// 0.90e-3 (planes only), normal error 0.58 vs 0.67 degrees.
     bool quadric = true;
     /// Reweighting passes after the first fit (Welsch weights on the residuals), so that a
     /// stray point or a misregistered layer pulls the fit less.
-    int robust_passes = 2;
+    int robust_passes = 1;
+    /// Fits in turn, each on the previous one's positions and normals. One pass leaves the
+    /// normal error of the neighbourhood's PCA (5.2 degrees on the torus at 0.4 % noise), two
+    /// 2.7, three 1.8 but with twice the inward pull of two on curved parts.
+    int passes = 2;
     /// Width of the Welsch weight in units of the weighted RMS residual.
     double robust_width = 2.0;
     /// Drop a point when a kept point lies within `thin` x its spacing in its own scan (0: keep
