@@ -353,7 +353,7 @@ class PointCloud:
         its neighbourhood across all scans and takes that fit's normal; where scans overlap,
         points within the spacing of a kept point are dropped. ``notes`` gets one line saying
         what changed, and ``fit_report`` holds it as numbers (``points_in``, ``points_kept``,
-        ``mean_shift``, ``mean_shift_spacings``, ``unmoved``).
+        ``mean_shift``, ``mean_shift_spacings``, ``unmoved``) and that line (``summary``).
 
         Parameters
         ----------
@@ -390,6 +390,7 @@ class PointCloud:
             "mean_shift": shift,
             "mean_shift_spacings": shift / fit.spacing if fit.spacing > 0 else 0.0,
             "unmoved": fit.unmoved,
+            "summary": fit.summary(),
         }
         return out
 
