@@ -292,13 +292,16 @@ def test_a_line_inside_a_surface_borrows_normals(rng):
 
 
 def test_fewer_points_than_neighbours():
-    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.01]], float)
-    n = est.estimate_normals(pts)
-    assert np.all(np.abs(n[:, 2]) > 0.99)
+    """Five points on a tilted plane: every step uses all of them."""
+    xy = np.array([[0, 0], [1, 0], [0, 1], [1, 1], [0.5, 0.4]], float)
+    pts = np.c_[xy, 0.3 * xy[:, 0] - 0.2 * xy[:, 1]]
+    truth = np.array([-0.3, 0.2, 1.0]) / np.linalg.norm([-0.3, 0.2, 1.0])
+    n = est.estimate_normals(pts, up=[0, 0, 1])
+    assert np.all(angles_deg(n, np.tile(truth, (5, 1))) < 0.05)  # float32 normals: ~0.01 deg
     r = est.coverage_radii(pts, n)
     assert np.all(r > 0)
-    fit = est.fit_surface(pts)
-    assert np.all(np.isfinite(fit.points))
+    fit = est.fit_surface(pts, up=[0, 0, 1])
+    np.testing.assert_allclose(fit.points, pts, atol=1e-12)
 
 
 @pytest.mark.parametrize("fn", ["knn", "estimate_normals", "coverage_radii", "fit_surface"])

@@ -24,6 +24,61 @@ KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &pr
 
 namespace {
 
+/// A cloud's points (and viewpoints, scans) in the order of a KD-tree built on them, and that
+/// tree answering with positions in this order. Each point's neighbours are then close to it in
+/// memory: the per-point steps (normals, fit, radii) read neighbours from cache instead of from
+/// anywhere in the input (2x faster on scans stored scan by scan).
+struct Spatial {
+    std::vector<uint32_t> perm;          ///< perm[r]: input index of the point stored at r
+    std::vector<double> points, viewpoints;
+    std::vector<int32_t> group;
+    PointsView view;
+    KdTree tree;
+
+    Spatial(const PointsView &in, int threads, Progress &progress)
+        : tree(in.points, in.n, threads, &progress) {
+        perm = tree.order();
+        points = tree.stored_points();
+        tree.renumber_in_tree_order();
+        view = in;
+        view.points = points.data();
+        if (in.viewpoints && in.n_viewpoints == in.n && in.n > 1) {
+            viewpoints.resize(3 * in.n);
+            for (size_t r = 0; r < in.n; ++r)
+                for (int a = 0; a < 3; ++a)
+                    viewpoints[3 * r + a] = in.viewpoints[3 * size_t(perm[r]) + a];
+            view.viewpoints = viewpoints.data();
+        }
+        if (in.group) {
+            group.resize(in.n);
+            for (size_t r = 0; r < in.n; ++r) group[r] = in.group[perm[r]];
+            view.group = group.data();
+        }
+    }
+    /// `rows` values per point, from tree order to input order.
+    template <class T>
+    std::vector<T> to_input(const std::vector<T> &v, size_t rows = 1) const {
+        std::vector<T> out(v.size());
+        for (size_t r = 0; r < perm.size(); ++r)
+            for (size_t a = 0; a < rows; ++a) out[rows * size_t(perm[r]) + a] = v[rows * r + a];
+        return out;
+    }
+    /// `rows` values per point, from input order to tree order.
+    template <class T>
+    std::vector<T> to_tree(const T *v, size_t rows = 1) const {
+        std::vector<T> out(rows * perm.size());
+        for (size_t r = 0; r < perm.size(); ++r)
+            for (size_t a = 0; a < rows; ++a) out[rows * r + a] = v[rows * size_t(perm[r]) + a];
+        return out;
+    }
+};
+
+void normals_to_input(const Spatial &sp, NormalsOutput &o) {
+    o.est.normals = sp.to_input(o.est.normals, 3);
+    o.est.support = sp.to_input(o.est.support);
+    o.est.spread = sp.to_input(o.est.spread);
+}
+
 NormalsOutput normals_from_table(const PointsView &in, const NeighbourTable &t,
                                  const NormalOptions &nopt, const OrientOptions &oopt,
                                  Progress &progress) {
@@ -41,10 +96,12 @@ NormalsOutput normals_from_table(const PointsView &in, const NeighbourTable &t,
 
 NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
                              const OrientOptions &oopt, Progress &progress) {
-    KdTree tree(in.points, in.n, nopt.threads, &progress);
+    Spatial sp(in, nopt.threads, progress);
     uint32_t k = std::max(nopt.k_max - 1, oopt.k);
-    NeighbourTable t = knn_all(tree, in.points, k, nopt.threads, &progress);
-    return normals_from_table(in, t, nopt, oopt, progress);
+    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, nopt.threads, &progress);
+    NormalsOutput out = normals_from_table(sp.view, t, nopt, oopt, progress);
+    normals_to_input(sp, out);
+    return out;
 }
 
 OrientResult orient_points(const PointsView &in, float *normals, const OrientOptions &oopt,
@@ -61,26 +118,37 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
 
 std::vector<float> radii_points(const PointsView &in, const float *normals, uint32_t k,
                                 const CoverOptions &opt, Progress &progress) {
-    KdTree tree(in.points, in.n, opt.threads, &progress);
-    NeighbourTable t = knn_all(tree, in.points, k, opt.threads, &progress);
-    return coverage_radii(in.points, normals, t, opt, &progress);
+    Spatial sp(in, opt.threads, progress);
+    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, opt.threads, &progress);
+    std::vector<float> nrm = sp.to_tree(normals, 3);
+    return sp.to_input(coverage_radii(sp.view.points, nrm.data(), t, opt, &progress));
 }
 
 FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
                      const OrientOptions &oopt, const FitOptions &fopt, Progress &progress) {
-    KdTree tree(in.points, in.n, fopt.threads, &progress);
+    Spatial sp(in, fopt.threads, progress);
     uint32_t k = std::max({nopt.k_max - 1, oopt.k, fopt.min_support - 1});
-    NeighbourTable t = knn_all(tree, in.points, k, fopt.threads, &progress);
+    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, fopt.threads, &progress);
     FitOutput out;
-    const float *nrm = normals;
+    std::vector<float> nrm;
     const uint32_t *support = nullptr;
-    if (!nrm) {
-        out.normals = normals_from_table(in, t, nopt, oopt, progress);
-        nrm = out.normals.est.normals.data();
+    if (normals) {
+        nrm = sp.to_tree(normals, 3);
+    } else {
+        out.normals = normals_from_table(sp.view, t, nopt, oopt, progress);
+        nrm = out.normals.est.normals;
         support = out.normals.est.support.data();
     }
-    out.fit = fit_surface(in.points, nrm, support, t, in.group, in.viewpoints, in.n_viewpoints,
+    const PointsView &v = sp.view;
+    out.fit = fit_surface(v.points, nrm.data(), support, t, v.group, v.viewpoints, v.n_viewpoints,
                           fopt, &progress);
+    if (!normals) normals_to_input(sp, out.normals);
+    FitResult &f = out.fit;
+    f.points = sp.to_input(f.points, 3);
+    f.normals = sp.to_input(f.normals, 3);
+    f.keep = sp.to_input(f.keep);
+    f.shift = sp.to_input(f.shift);
+    f.spacing = sp.to_input(f.spacing);
     return out;
 }
 

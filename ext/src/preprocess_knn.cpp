@@ -2,6 +2,7 @@
 #include "pointviz/knn.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
@@ -128,6 +129,15 @@ void KdTree::build(KdRecord *rec, uint32_t node, uint32_t begin, uint32_t end, u
     }
 }
 
+/// Whether the ball around q of squared radius r2 lies strictly inside the box (lo, hi).
+static inline bool ball_inside(const double *q, double r2, const double *b) {
+    if (!(r2 < std::numeric_limits<double>::infinity())) return false;
+    double r = std::sqrt(r2);
+    for (int a = 0; a < 3; ++a)
+        if (!(q[a] - r > b[a] && q[a] + r < b[3 + a])) return false;
+    return true;
+}
+
 /// Squared distance from q to the box (lo, hi).
 static inline double box_dist2(const double *q, const double *b) {
     double d = 0;
@@ -186,11 +196,17 @@ uint32_t KdTree::query_near(const double q[3], uint32_t start, uint32_t k, uint3
         ii = ibuf.data();
     }
     KnnHeap heap{want, 0, dd, ii};
-    uint32_t leaf = kNoIndex;
-    if (start != kNoIndex) {
-        // the leaf holding stored position `start` first: its points bound the search at once
+    if (start == kNoIndex) {
+        search(0, 0, uint32_t(ids_.size()), 0, q, heap, kNoIndex);
+    } else {
+        // bottom-up: the leaf holding stored position `start` first (its points bound the
+        // search at once), then the sibling of each node on the way up, until the ball of the
+        // current k-th distance lies inside a node's box: the cells of a KD-tree partition
+        // space, so nothing outside that node can be closer
+        uint32_t path[64], pb[64], pe[64];
         uint32_t node = 0, b = 0, e = uint32_t(ids_.size());
         for (uint32_t depth = 0; depth < depth_; ++depth) {
+            path[depth] = node, pb[depth] = b, pe[depth] = e;
             uint32_t mid = b + (e - b) / 2;
             if (start < mid) node = 2 * node + 1, e = mid;
             else node = 2 * node + 2, b = mid;
@@ -200,9 +216,18 @@ uint32_t KdTree::query_near(const double q[3], uint32_t start, uint32_t k, uint3
             double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
             heap.push(dx * dx + dy * dy + dz * dz, ids_[r]);
         }
-        leaf = node;
+        for (uint32_t depth = depth_; depth-- > 0;) {
+            if (ball_inside(q, heap.bound(), &box_[6 * size_t(node)])) break;
+            uint32_t parent = path[depth], pbeg = pb[depth], pend = pe[depth];
+            uint32_t mid = pbeg + (pend - pbeg) / 2;
+            bool was_left = node == 2 * parent + 1;
+            uint32_t sib = was_left ? node + 1 : node - 1;
+            uint32_t sb = was_left ? mid : pbeg, se = was_left ? pend : mid;
+            if (box_dist2(q, &box_[6 * size_t(sib)]) <= heap.bound())
+                search(sib, sb, se, depth + 1, q, heap, kNoIndex);
+            node = parent;
+        }
     }
-    search(0, 0, uint32_t(ids_.size()), 0, q, heap, leaf);
     uint32_t out = 0;
     for (uint32_t j = 0; j < heap.size && out < k; ++j) {
         if (ii[j] == skip) continue;
@@ -212,6 +237,8 @@ uint32_t KdTree::query_near(const double q[3], uint32_t start, uint32_t k, uint3
     }
     return out;
 }
+
+void KdTree::renumber_in_tree_order() { std::iota(ids_.begin(), ids_.end(), 0u); }
 
 NeighbourTable knn_all(const KdTree &tree, const double *points, uint32_t k, int threads,
                        Progress *progress) {

@@ -71,7 +71,7 @@ Fit fit_plane(const double *points, size_t i, const uint32_t *row, uint32_t k) {
     Fit f;
     f.distinct = distinct;
     f.axes = principal_axes(cov, kPlanarMinGap);
-    f.axes.ok = f.axes.ok && distinct >= kMinDistinct;
+    f.axes.ok = f.axes.ok && distinct >= std::min(kMinDistinct, k);  // tiny clouds: all points
     double l0 = std::max(f.axes.l0, 0.0);
     f.spread = std::sqrt(l0);
     if (f.axes.ok) {

@@ -540,6 +540,8 @@ void test_empty_and_oversized_builds_throw() {
 
 }  // namespace
 
+int run_preprocess_tests();  // preprocess_tests.cpp
+
 int main() {
     test_one_surfel();
     test_duplicates();
@@ -552,5 +554,6 @@ int main() {
     test_render();
     test_empty_and_oversized_builds_throw();
     std::printf("core_tests: %d checks, %d failures\n", g_checks, g_failures);
-    return g_failures == 0 ? 0 : 1;
+    int preprocess_failures = run_preprocess_tests();
+    return g_failures == 0 && preprocess_failures == 0 ? 0 : 1;
 }
