@@ -288,7 +288,8 @@ def main(argv: list[str] | None = None) -> int:
         result["virtual_scans"] = virtual_scans_section(args, print)
     if "3" in sections:
         result["dragon"] = dragon_section(args, print)
-    path = pf.write_json(args.out, "preprocess_quick" if args.quick else "preprocess", result)
+    path = pf.write_json(args.out, "preprocess_quick.json" if args.quick else "preprocess.json",
+                         result)
     print(f"wrote {path}")
     return 0
 
