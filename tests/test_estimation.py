@@ -10,7 +10,6 @@ import pytest
 from scipy.spatial import cKDTree
 
 from pointviz import estimation as est
-from pointviz.cloud import PointCloud
 from pointviz.comparison.scans import virtual_scans
 from pointviz.errors import InputError
 
@@ -286,7 +285,7 @@ def test_collinear_points_get_a_perpendicular_normal():
 def test_a_line_inside_a_surface_borrows_normals(rng):
     plane = np.c_[rng.uniform(0, 1, (2000, 2)), np.zeros(2000)]
     line = np.c_[np.full(30, 3.0), np.zeros(30), np.linspace(0, 1e-3, 30)]  # far, collinear
-    n, d = est.estimate_normals(np.r_[plane, line], up=[0, 0, 1], details=True)
+    n = est.estimate_normals(np.r_[plane, line], up=[0, 0, 1])
     assert np.all(np.isfinite(n))
     assert np.all(np.abs(n[:2000, 2]) > 0.99)
 
