@@ -282,7 +282,7 @@ def test_collinear_points_get_a_perpendicular_normal():
     assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-6)
 
 
-def test_a_line_inside_a_surface_borrows_normals(rng):
+def test_a_stray_line_gives_finite_normals_and_leaves_the_surface_alone(rng):
     plane = np.c_[rng.uniform(0, 1, (2000, 2)), np.zeros(2000)]
     line = np.c_[np.full(30, 3.0), np.zeros(30), np.linspace(0, 1e-3, 30)]  # far, collinear
     n = est.estimate_normals(np.r_[plane, line], up=[0, 0, 1])
