@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .arrays import bounds
 from .errors import InputError, require
 from .estimation import (  # noqa: F401 - re-exported: the estimation used to live here
     COVER_CAP,
@@ -275,7 +276,8 @@ class PointCloud:
         if n == 0:
             raise InputError("points: the cloud is empty (0 points)")
         self._points = np.ascontiguousarray(pts, dtype=np.float64)
-        extent = float(np.max(np.ptp(self._points, axis=0)))
+        lo, hi = bounds(self._points)
+        extent = float(np.max(hi - lo))
         if not extent <= MAX_EXTENT:
             raise InputError(
                 f"points: the cloud spans {extent:.3g} units, beyond what float32 surfels can "
@@ -420,7 +422,7 @@ class PointCloud:
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """``(lo, hi)``: (3,) float64 corners of the axis-aligned bounding box of the points."""
-        return self._points.min(axis=0), self._points.max(axis=0)
+        return bounds(self._points)
 
     @property
     def center(self) -> np.ndarray:

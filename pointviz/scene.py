@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _core
+from .arrays import bounds, dot3
 from .errors import InputError
 
 _Y_UP = (0.0, 1.0, 0.0)
@@ -184,6 +185,38 @@ def default_lights(camera, up) -> list:
     return [DirectionalLight(direction=tuple(direction), intensity=1.0, angle_deg=3.0)]
 
 
+def cloud_extent(points, radii, up) -> tuple[np.ndarray, np.ndarray, float]:
+    """Bounds of a cloud's disks and the level of a ground plane under it.
+
+    One O(n) pass; callers cache the result (see :meth:`Scene._extent`,
+    :meth:`pointviz.SurfelScene.extent`).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    radii : (n,) float or None
+        Disk radii: the bounds grow by the largest, the ground sinks by the 99th percentile.
+    up : (3,) float, unit
+
+    Returns
+    -------
+    lo, hi : (3,) float64
+        Axis-aligned bounds including the largest radius.
+    level : float
+        Height along ``up`` of the ground: the lowest point, ignoring the lowest
+        :data:`GROUND_OUTLIER_FRACTION` of a cloud with at least
+        :data:`GROUND_ROBUST_MIN_POINTS` points.
+    """
+    r = float(np.max(radii)) if radii is not None else 0.0
+    lo, hi = bounds(points)
+    lo, hi = lo - r, hi + r
+    h = dot3(points, up)
+    r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
+    low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
+           else h.min())
+    return lo, hi, float(low) - r99
+
+
 @dataclass
 class SceneObject:
     """One object of a scene: a surfel scene (or a mesh backend) and its material."""
@@ -296,31 +329,26 @@ class Scene:
 
     def _extent(self, obj) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds (with disk radii) and ground level of one object, computed once per geometry:
-        every frame of a path or viewer session would otherwise scan all points again."""
+        every frame of a path or viewer session would otherwise scan all points again. A
+        SurfelScene keeps its own (so a new Scene around it, as ``render(surfel_scene)`` makes
+        for every frame, costs nothing that grows with the cloud); a bare cloud's is kept here."""
         g = obj.geometry
         cloud = getattr(g, "cloud", g)
         cache = self.__dict__.setdefault("_extents", {})
         hit = cache.get(id(cloud))
-        if hit is not None and hit[0] is cloud:
+        if hit is not None and hit[0] is cloud:  # also when the cloud has become a SurfelScene
             return hit[1]
-        pts = getattr(cloud, "points", None)
-        if pts is None:
+        if hasattr(g, "extent") and hasattr(g, "tree"):  # a SurfelScene
+            return g.extent(self.up)
+        if getattr(cloud, "points", None) is None:
             lo, hi = (np.asarray(v, dtype=np.float64) for v in g.bounds())
             corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                                 for z in (lo[2], hi[2])])
-            low = float(np.min(corners @ self.up))
+            ext = (lo, hi, float(np.min(corners @ self.up)))
         else:
-            pts = np.asarray(pts)
-            radii = getattr(cloud, "radii", None)
-            r = float(np.max(radii)) if radii is not None else 0.0
-            lo, hi = pts.min(axis=0) - r, pts.max(axis=0) + r
-            h = pts @ self.up
-            r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
-            low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
-                   else h.min())
-            low = float(low) - r99
-        cache[id(cloud)] = (cloud, (lo, hi, low))
-        return lo, hi, low
+            ext = cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
+        cache[id(cloud)] = (cloud, ext)
+        return ext
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of every object (including disk radii)."""

@@ -5,7 +5,8 @@ The traversal variants reproduce the comparison of Zakaria et al. (GRAPP 2006, s
 ========== ===== ====== ======================================
 variant    LoD   culling bounds
 ========== ===== ====== ======================================
-kdtree     no    no      boxes at every level (a plain KD-tree)
+kdtree     no    no      none: split planes only (the paper's KD-tree, kdtree.h)
+bvh        no    no      boxes at every level of the hierarchy
 lod        yes   no      spheres at every level
 lod+cull   yes   yes     spheres at every level
 full       yes   yes     boxes near the top, spheres below
@@ -19,11 +20,13 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from .arrays import bounds
 from .errors import InputError
 
 #: The paper's traversal variants, as knob settings.
 VARIANTS = {
-    "kdtree": {"lod": False, "cull": False, "box_depth": "all"},
+    "kdtree": {"lod": False, "cull": False, "box_depth": 0, "tree": "kdtree"},
+    "bvh": {"lod": False, "cull": False, "box_depth": "all"},
     "lod": {"lod": True, "cull": False, "box_depth": 0},
     "lod+cull": {"lod": True, "cull": True, "box_depth": 0},
     "full": {"lod": True, "cull": True, "box_depth": "auto"},
@@ -97,8 +100,10 @@ class SurfelScene:
     cloud : PointCloud
         Anything with ``points`` (n, 3), ``normals`` (n, 3), ``radii`` (n,) and ``colors``
         ((n, 3) or None).
-    variant : {"full", "lod+cull", "lod", "kdtree"}
-        The paper's traversal variant; the knobs below override it one by one.
+    variant : {"full", "lod+cull", "lod", "bvh", "kdtree"}
+        The paper's traversal variant; the knobs below override it one by one. ``"kdtree"`` is
+        a separate structure (split planes only; ``lod``, ``box_depth``, ``slabs`` and
+        ``leaf_size`` do not apply to it).
     interpolation : {"smooth", "paper", "none"}
         How the disks around a hit are blended (see ``pointviz._core.Interpolation``).
     lod, cull : bool, optional
@@ -175,19 +180,20 @@ class SurfelScene:
         elif not (isinstance(bd, (int, np.integer)) and bd >= 0):
             raise InputError(f"box_depth: expected an integer >= 0, 'auto' or 'all', got {bd!r}")
         if origin is None:
-            origin = 0.5 * (points.min(axis=0) + points.max(axis=0))
+            lo, hi = bounds(points)
+            origin = 0.5 * (lo + hi)
         origin = np.asarray(origin, dtype=np.float64).reshape(3)
         colors = getattr(cloud, "colors", None)
-        self._tree = _core.SurfelTree(
-            points,
-            np.ascontiguousarray(cloud.normals, dtype=np.float32),
-            np.ascontiguousarray(cloud.radii, dtype=np.float32),
-            None if colors is None else np.ascontiguousarray(colors, dtype=np.float32),
-            tuple(float(v) for v in origin),
-            leaf_size=int(leaf_size),
-            box_depth=int(min(bd, _ALL_LEVELS)),
-            threads=self.threads or 0,
-        )
+        arrays = (points, np.ascontiguousarray(cloud.normals, dtype=np.float32),
+                  np.ascontiguousarray(cloud.radii, dtype=np.float32),
+                  None if colors is None else np.ascontiguousarray(colors, dtype=np.float32),
+                  tuple(float(v) for v in origin))
+        if knobs.get("tree") == "kdtree":  # split planes only: no LoD, cones or boxes
+            self._tree = _core_call(_core.KdTree, *arrays)
+        else:
+            self._tree = _core.SurfelTree(*arrays, leaf_size=int(leaf_size),
+                                          box_depth=int(min(bd, _ALL_LEVELS)),
+                                          threads=self.threads or 0)
         self._options = _core.TraceOptions()
         self._options.lod = knobs["lod"]
         self._options.cull = knobs["cull"]
@@ -263,6 +269,18 @@ class SurfelScene:
     def tree(self):
         """The core tree object (``pointviz._core.SurfelTree``), for renderers and diagnostics."""
         return self._tree
+
+    def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds of the disks and the ground level along ``up`` (see
+        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        that a frame costs nothing that grows with the cloud."""
+        from .scene import cloud_extent
+
+        key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
+        cache = self.__dict__.setdefault("_extents", {})
+        if key not in cache:
+            cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+        return cache[key]
 
     def trace_options(self, lod_pixels: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold."""

@@ -37,7 +37,8 @@ def check_coordinates(points, what: str) -> None:
     import numpy as np
 
     a = np.abs(np.asarray(points, dtype=np.float64))
-    a = a[np.isfinite(a).all(axis=1)] if a.ndim == 2 else a[np.isfinite(a)]
+    if not np.isfinite(a).all():  # only then the slower per-row selection
+        a = a[np.isfinite(a).all(axis=1)] if a.ndim == 2 else a[np.isfinite(a)]
     if a.size and a.max() > MAX_ABS_COORDINATE:
         rows = np.flatnonzero((a > MAX_ABS_COORDINATE).any(axis=-1)) if a.ndim == 2 else []
         raise InputError(

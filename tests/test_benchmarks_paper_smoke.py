@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -36,17 +37,18 @@ def test_paper_figures_quick_writes_figures_5_to_7(shared_data, tmp_path):
     res = run_script("paper_figures.py", tmp_path, shared_data, "--models", "armadillo,dragon")
     assert [r["model"] for r in res["fig5"]] == ["armadillo", "dragon"]
     for rec in res["fig5"]:
-        assert set(rec["variants"]) == {"kdtree", "lod", "lod+cull", "full"}
+        assert set(rec["variants"]) == {"kdtree", "bvh", "lod", "lod+cull", "full"}
         for v in rec["variants"].values():
             assert v["seconds"] > 0
             assert {"nodes_visited", "disk_tests", "max_depth"} <= set(v["all_rays"])
-            assert "drop_vs_kdtree" in v
+            assert "drop_vs_kdtree" in v and "drop_vs_bvh" in v
     assert "embree discs" in res["fig5"][0]["embree"]
     assert "embree triangles" in res["fig5"][0]["embree"]  # Armadillo has its source mesh
     for rec in res["fig7"]:
         assert [r["factor"] for r in rec["rows"]] == [1.0, 1.5, 2.0, 4.0, 8.0]
         for r in rec["rows"]:
-            assert {"lod", "no lod", "kdtree"} <= set(r["seconds"])
+            assert {"lod", "no lod", "kdtree", "bvh"} <= set(r["seconds"])
+            assert set(r["full_drop_vs"]) == {"kdtree", "bvh"}
             assert 0.0 <= r["flip"] <= 1.0
     assert {p.name for p in tmp_path.glob("*.png")} == {
         "fig5_traversal_time.png", "fig6_stats.png", "fig7_distance.png"}
@@ -82,3 +84,17 @@ def test_bench_frame_quick_writes_ratio(shared_data, tmp_path):
     assert res["frame_seconds"] > 0 and res["primary_seconds"] > 0
     assert res["ratio"] == pytest.approx(res["frame_seconds"] / res["primary_seconds"])
     assert {"ratio", "seconds"} == set(res["meets"])
+
+
+def test_lod_budget_quick_fits_a_bound(shared_data, tmp_path):
+    res = run_script("lod_budget.py", tmp_path, shared_data)
+    assert set(res["fit"]["coefficients"]) == {"spread", "thickness", "colour", "overhang"}
+    assert all(v >= 0 for v in res["fit"]["coefficients"].values())
+    # The script's simulated LoD cut agrees with the core traversal's own LoD hits (it misses the
+    # few rays that hit a coarser node's disk in front of their full-detail surfel).
+    sim = np.array([r["stopped_fraction"] for r in res["rows"]])
+    core = np.array([r["lod_hit_fraction"] for r in res["rows"]])
+    assert np.all(np.abs(sim - core) <= 0.02 + 0.25 * core), np.c_[sim, core]
+    assert core.max() > 0.1 and np.corrcoef(sim, core)[0, 1] > 0.95
+    assert all(0.0 <= r["flip"] <= 1.0 for r in res["rows"])
+    assert {p.name for p in tmp_path.glob("*.png")} == {"lod_budget_calibration.png"}

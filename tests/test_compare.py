@@ -263,3 +263,40 @@ def test_mesh_backend_renders_from_several_threads_at_once():
     for fr in frames:
         np.testing.assert_array_equal(fr.color, serial.color)
 
+
+
+def test_a_coarse_reference_mesh_is_flagged_in_the_report(tmp_path):
+    """The dragon's case: a 23k-vertex reference for 469k scanned points favours smooth
+    reconstructions, and the report must say so; a fine one, or an analytic one, gets no note."""
+    from pointviz.comparison.run import COARSE_REFERENCE_FRACTION, reference_note
+
+    note = reference_note("mesh", 22_998, 469_193)
+    assert "coarse" in note and "22,998" in note and "favours smooth reconstructions" in note
+    assert reference_note("mesh", 172_974, 172_974) is None
+    assert reference_note("analytic", 10, 469_193) is None
+    n = 1000
+    assert reference_note("mesh", int(COARSE_REFERENCE_FRACTION * n) - 1, n) is not None
+    assert reference_note("mesh", int(COARSE_REFERENCE_FRACTION * n), n) is None
+
+    import pointviz
+    from pointviz.cloud import PointCloud
+
+    trimesh = pytest.importorskip("trimesh")
+    ref = trimesh.creation.icosphere(subdivisions=1)  # 42 vertices
+    ref_path = tmp_path / "coarse.ply"
+    ref.export(str(ref_path))
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    pts_path = tmp_path / "points.xyzn"
+    np.savetxt(pts_path, np.hstack([p, p]), fmt="%.7f")
+    assert isinstance(pointviz.load(pts_path), PointCloud)
+    out = tmp_path / "report"
+    doc = pointviz.compare(pts_path, reference=ref_path, out_dir=out, quick=True,
+                           methods=["surfels-smooth"], log=lambda *_: None)
+    assert doc["reference"]["vertices"] == 42 and "coarse" in doc["reference"]["note"]
+    assert doc["load_seconds"] > 0
+    page = (out / "index.html").read_text()
+    assert "Note on the reference" in page and "42 vertices for 3,000 input points" in page
+    for e in doc["entries"]:
+        assert e["times"]["render"] >= e["times"]["render_in_core"] > 0

@@ -470,3 +470,155 @@ def test_directory_is_rejected(tmp_path):
 def test_point_cloud_from_loaded_file_is_a_pointcloud(tmp_path, rng):
     cloud = load(write_ply(tmp_path / "x.ply", rng.random((30, 3))))
     assert isinstance(cloud, PointCloud)
+
+
+# ------------------------------------------------------------------------------------------
+# the core's table reader (PLY, PCD, XYZ rows): against what was written and against Open3D
+
+
+def _ply_bytes(fmt, pts, normals=None, colors=None, extra_element=None):
+    """A PLY file of float32 points (+ normals, uchar colours, and an element after them)."""
+    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+    dt = [(p, ">f4" if fmt == "binary_big_endian" else "<f4") for p in props]
+    if colors is not None:
+        dt += [(c, "u1") for c in ("red", "green", "blue")]
+    head = f"ply\nformat {fmt} 1.0\ncomment core reader test\nelement vertex {len(pts)}\n"
+    head += "".join(f"property {'uchar' if t == 'u1' else 'float'} {n}\n" for n, t in dt)
+    if extra_element is not None:
+        head += f"element range_grid {len(extra_element)}\nproperty list uchar int vertex_indices\n"
+    head += "end_header\n"
+    rows = np.zeros(len(pts), dtype=dt)
+    for k, name in enumerate("xyz"):
+        rows[name] = pts[:, k]
+    if normals is not None:
+        for k, name in enumerate(("nx", "ny", "nz")):
+            rows[name] = normals[:, k]
+    if colors is not None:
+        for k, name in enumerate(("red", "green", "blue")):
+            rows[name] = colors[:, k]
+    if fmt == "ascii":
+        body = "".join(" ".join(repr(v.item()) for v in row) + "\n" for row in rows).encode()
+        if extra_element is not None:
+            body += "".join(f"{len(r)} {' '.join(map(str, r))}\n" for r in extra_element).encode()
+    else:
+        body = rows.tobytes()
+        if extra_element is not None:
+            for r in extra_element:
+                body += bytes([len(r)]) + np.asarray(r, dtype="<i4" if fmt != "binary_big_endian"
+                                                     else ">i4").tobytes()
+    return head.encode() + body
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_ply_points_read_by_the_core_match_what_was_written_and_open3d(tmp_path, rng, fmt):
+    n = 2000
+    pts = (rng.normal(size=(n, 3)) * 10).astype(np.float32)
+    nrm = rng.normal(size=(n, 3)).astype(np.float32)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    col = rng.integers(0, 256, size=(n, 3), dtype=np.uint8)
+    grid = [[i] if i % 3 else [] for i in range(50)]  # a range_grid-like list element after them
+    path = tmp_path / f"s_{fmt}.ply"
+    path.write_bytes(_ply_bytes(fmt, pts, nrm, col, grid))
+    cloud = load(path, estimate=False)
+    np.testing.assert_array_equal(cloud.points, pts.astype(np.float64))  # exact: float32 values
+    np.testing.assert_allclose(cloud.normals, nrm, atol=1e-7)
+    np.testing.assert_allclose(cloud.colors, col / 255.0, atol=1e-6)
+    ref = o3d.io.read_point_cloud(str(path))
+    np.testing.assert_array_equal(cloud.points, np.asarray(ref.points))
+    np.testing.assert_allclose(cloud.colors, np.asarray(ref.colors), atol=1e-6)
+
+
+def test_ascii_ply_errors_name_the_row_and_the_missing_lines(tmp_path, rng):
+    pts = rng.random((20, 3)).astype(np.float32)
+    good = _ply_bytes("ascii", pts, extra_element=[[1, 2]] * 5)
+    (tmp_path / "short.ply").write_bytes(good[: good.rindex(b"2 1 2\n")])  # last line lost
+    with pytest.raises(FileFormatError, match=r"short\.ply: truncated PLY: .*25 data lines.*24"):
+        load(tmp_path / "short.ply")
+    bad = good.replace(good.split(b"end_header\n")[1].split(b"\n")[7], b"0.5 nope 0.5", 1)
+    (tmp_path / "word.ply").write_bytes(bad)
+    with pytest.raises(FileFormatError, match=r"word\.ply: malformed ASCII PLY: vertex row 7 "
+                                              r"holds a non-number 'nope'"):
+        load(tmp_path / "word.ply")
+
+
+def test_pcd_read_by_the_core_matches_open3d(tmp_path, rng):
+    n = 500
+    pts = rng.random((n, 3))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    nrm = rng.normal(size=(n, 3))
+    pcd.normals = o3d.utility.Vector3dVector(nrm / np.linalg.norm(nrm, axis=1, keepdims=True))
+    pcd.colors = o3d.utility.Vector3dVector(rng.integers(0, 256, (n, 3)) / 255.0)
+    for ascii_ in (True, False):
+        path = tmp_path / f"c{int(ascii_)}.pcd"
+        assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii_)
+        ref = o3d.io.read_point_cloud(str(path))
+        cloud = load(path, estimate=False)
+        np.testing.assert_allclose(cloud.points, np.asarray(ref.points), rtol=1e-7)
+        np.testing.assert_allclose(cloud.normals, np.asarray(ref.normals), atol=1e-6)
+        np.testing.assert_allclose(cloud.colors, np.asarray(ref.colors), atol=1e-6)
+
+
+def test_xyz_text_variants(tmp_path):
+    (tmp_path / "a.xyz").write_text("# x y z\n1 2 3\n\n4,5,6,99\n  7;8;9\n// end\n")
+    np.testing.assert_array_equal(load(tmp_path / "a.xyz", estimate=False).points,
+                                  [[1, 2, 3], [4, 5, 6], [7, 8, 9]])
+    (tmp_path / "b.xyzn").write_text("0 0 0 0 0 2\n1 0 0 0 0 1\n0 1 0 0 0 1\n")
+    np.testing.assert_allclose(load(tmp_path / "b.xyzn", estimate=False).normals[:, 2], 1.0)
+    (tmp_path / "c.xyzrgb").write_text("0 0 0 255 0 0\n1 0 0 0 255 0\n0 1 0 0 0 255\n")
+    np.testing.assert_allclose(load(tmp_path / "c.xyzrgb", estimate=False).colors, np.eye(3))
+    (tmp_path / "d.xyz").write_text("1 2 3\n4 5\n")
+    with pytest.raises(FileFormatError, match=r"d\.xyz: malformed \.xyz text: data row 1 has 2 "
+                                              r"values, expected 3"):
+        load(tmp_path / "d.xyz")
+    (tmp_path / "e.xyz").write_text("# only a comment\n\n")
+    with pytest.raises(FileFormatError, match=r"e\.xyz: no points"):
+        load(tmp_path / "e.xyz")
+
+
+def test_conf_scans_read_in_one_call_equal_each_scan_read_alone(tmp_path, rng):
+    """The parallel read of a registration gives, scan by scan, what loading each file gives;
+    a broken scan among them is named with its line."""
+    lines = []
+    for k in range(6):
+        pts = rng.random((300 + 50 * k, 3))
+        fmt = "ascii" if k % 2 else "binary_little_endian"
+        (tmp_path / f"s{k}.ply").write_bytes(_ply_bytes(fmt, pts.astype(np.float32)))
+        lines.append(f"bmesh s{k}.ply 0 0 0 0 0 0 1")
+    (tmp_path / "all.conf").write_text("\n".join(lines) + "\n")
+    cloud = load(tmp_path / "all.conf", estimate=False)
+    alone = np.concatenate([load(tmp_path / f"s{k}.ply", estimate=False).points for k in range(6)])
+    np.testing.assert_array_equal(cloud.points, alone)
+    np.testing.assert_array_equal(np.bincount(cloud.scan_index), [300 + 50 * k for k in range(6)])
+    data = (tmp_path / "s3.ply").read_bytes()
+    (tmp_path / "s3.ply").write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(FileFormatError, match=r"all\.conf: line 4: .*s3\.ply: truncated PLY"):
+        load(tmp_path / "all.conf")
+
+
+def test_core_reader_gives_the_same_rows_for_any_thread_count(tmp_path, rng):
+    from pointviz.readers import table
+
+    pts = rng.normal(size=(60000, 3))
+    path = tmp_path / "big.xyz"
+    np.savetxt(path, pts, fmt="%.17g")
+    spec = table.spec(path, offset=0, encoding="ascii", columns=["f64"] * 3, rows=-1,
+                      wanted=[0, 1, 2])
+    outs = [table.read([spec], threads=t)[0].values for t in (1, 2, 4)]
+    np.testing.assert_array_equal(outs[0], pts)  # %.17g round trips exactly
+    for out in outs[1:]:
+        np.testing.assert_array_equal(out, outs[0])
+
+
+def test_conf_scan_with_nan_rows_drops_them_with_a_note(tmp_path, rng):
+    pts = rng.random((200, 3)).astype(np.float32)
+    pts[[5, 17]] = np.nan
+    (tmp_path / "a.ply").write_bytes(_ply_bytes("binary_little_endian", pts))
+    (tmp_path / "b.ply").write_bytes(_ply_bytes("ascii", pts[20:]))
+    (tmp_path / "r.conf").write_text("bmesh a.ply 1 2 3 0 0 0 1\nbmesh b.ply 0 0 0 0 0 0 1\n")
+    with pytest.warns(UserWarning, match="dropped 2 of 380 points"):
+        cloud = load(tmp_path / "r.conf", estimate=False)
+    keep = np.isfinite(pts).all(axis=1)
+    np.testing.assert_array_equal(cloud.points[:198], pts[keep].astype(np.float64) + [1, 2, 3])
+    np.testing.assert_array_equal(np.bincount(cloud.scan_index), [198, 180])
+    # the viewpoint comes from the finite points only
+    assert np.isfinite(cloud.viewpoints).all()

@@ -9,6 +9,7 @@
 #include <nanobind/stl/unique_ptr.h>
 #include <nanobind/stl/tuple.h>
 
+#include <algorithm>
 #include <array>
 #include <optional>
 #include <tuple>
@@ -19,10 +20,12 @@
 #include <thread>
 
 #include "pointviz/cast.h"
+#include "pointviz/kdtree.h"
 #include "pointviz/preprocess.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
+#include "readers_bindings.h"
 
 namespace nanobind::detail {
 /// Vec3 <-> any sequence of three numbers (tuple on the way out).
@@ -103,10 +106,9 @@ nb::dict stats_dict(const BatchStats &s) {
     return d;
 }
 
-std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> normals,
-                                      CArray<float> radii, std::optional<CArray<float>> colors,
-                                      std::array<double, 3> origin, uint32_t leaf_size,
-                                      uint32_t box_depth, int threads) {
+/// The input arrays of a build, shapes checked.
+SurfelArrays surfel_arrays(const CArray<double> &points, const CArray<float> &normals,
+                           const CArray<float> &radii, const std::optional<CArray<float>> &colors) {
     size_t n = points.shape(0);
     check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
     check_rows("normals", normals.ndim(), normals.shape(0), normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
@@ -116,13 +118,21 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
         check_rows("colors", colors->ndim(), colors->shape(0), colors->ndim() > 1 ? colors->shape(1) : 0, n, 3);
         in.colors = colors->data();
     }
+    return in;
+}
+
+std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> normals,
+                                      CArray<float> radii, std::optional<CArray<float>> colors,
+                                      std::array<double, 3> origin, uint32_t leaf_size,
+                                      uint32_t box_depth, int threads) {
+    SurfelArrays in = surfel_arrays(points, normals, radii, colors);
     BuildOptions opt{leaf_size, box_depth, threads};
     nb::gil_scoped_release release;
     return std::make_unique<SurfelTree>(in, origin.data(), opt);
 }
 
-template <class T>
-nb::tuple cast_binding(const SurfelTree &t, CArray<T> rays, const TraceOptions &opt,
+template <class T, class Tree>
+nb::tuple cast_binding(const Tree &t, CArray<T> rays, const TraceOptions &opt,
                        float pixel_angle, int threads, bool want_stats) {
     size_t n = rays.shape(0);
     check_rows("rays", rays.ndim(), n, rays.ndim() > 1 ? rays.shape(1) : 0, n, 6);
@@ -146,8 +156,8 @@ nb::tuple cast_binding(const SurfelTree &t, CArray<T> rays, const TraceOptions &
     return nb::make_tuple(d, stats_dict(st));
 }
 
-template <class T>
-nb::tuple occluded_binding(const SurfelTree &t, CArray<T> rays, CArray<float> t_max,
+template <class T, class Tree>
+nb::tuple occluded_binding(const Tree &t, CArray<T> rays, CArray<float> t_max,
                            const TraceOptions &opt, float t_min, float pixel_angle, int threads,
                            bool want_stats) {
     size_t n = rays.shape(0);
@@ -163,6 +173,53 @@ nb::tuple occluded_binding(const SurfelTree &t, CArray<T> rays, CArray<float> t_
     }
     check_invalid(st, "rays have NaN/inf values, a zero direction or a NaN t_max");
     return nb::make_tuple(ah, stats_dict(st));
+}
+
+// Dispatch on the rays' dtype here: nanobind overloads would let a float64 array be converted to
+// float32 when another argument needs a conversion pass, silently losing the precision that
+// georeferenced rays need.
+template <class Tree>
+nb::tuple cast_any(const Tree &t, AnyArray rays, const TraceOptions &opt, double pixel_angle,
+                   int threads, bool want_stats) {
+    if (rays.dtype() == nb::dtype<float>())
+        return cast_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), opt,
+                                   float(pixel_angle), threads, want_stats);
+    if (rays.dtype() == nb::dtype<double>())
+        return cast_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), opt,
+                                    float(pixel_angle), threads, want_stats);
+    throw nb::type_error("rays: expected a float32 or float64 array");
+}
+
+template <class Tree>
+nb::tuple occluded_any(const Tree &t, AnyArray rays, CArray<float> t_max, const TraceOptions &opt,
+                       double t_min, double pixel_angle, int threads, bool want_stats) {
+    if (rays.dtype() == nb::dtype<float>())
+        return occluded_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), t_max, opt,
+                                       float(t_min), float(pixel_angle), threads, want_stats);
+    if (rays.dtype() == nb::dtype<double>())
+        return occluded_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), t_max, opt,
+                                        float(t_min), float(pixel_angle), threads, want_stats);
+    throw nb::type_error("rays: expected a float32 or float64 array");
+}
+
+/// The conventional KD-tree. The build runs with the GIL released and polls `progress`
+/// (see kdtree.h), so the cancellation helper can run it as one call taking a Progress&.
+std::unique_ptr<KdTree> build_kdtree(const SurfelArrays &in, std::array<double, 3> origin,
+                                     const KdBuildOptions &opt, Progress &progress) {
+    nb::gil_scoped_release release;
+    return std::make_unique<KdTree>(in, origin.data(), opt, &progress);
+}
+
+std::unique_ptr<KdTree> make_kdtree(CArray<double> points, CArray<float> normals,
+                                    CArray<float> radii, std::optional<CArray<float>> colors,
+                                    std::array<double, 3> origin, float intersect_cost,
+                                    float empty_bonus, uint32_t max_leaf, uint32_t max_depth) {
+    SurfelArrays in = surfel_arrays(points, normals, radii, colors);
+    if (!(intersect_cost > 0.f) || !(empty_bonus >= 0.f && empty_bonus < 1.f) || max_leaf < 1)
+        throw nb::value_error("KdTree: intersect_cost must be > 0, empty_bonus in [0, 1), max_leaf >= 1");
+    Progress progress;
+    return build_kdtree(in, origin, KdBuildOptions{intersect_cost, empty_bonus, max_leaf, max_depth},
+                        progress);
 }
 
 /// A render scene plus the Python objects its geometries depend on.
@@ -428,9 +485,13 @@ NB_MODULE(_core, m) {
         .def(nb::init<>())
         .def("add_surfels", [](PyRenderScene &s, nb::object tree_obj, const TraceOptions &opt,
                                Vec3 offset, const Material &mat) {
-            const SurfelTree *tree = nb::cast<const SurfelTree *>(tree_obj);
             s.keep_alive.push_back(tree_obj);
-            s.scene.objects.push_back({std::make_shared<SurfelGeometry>(tree, opt, offset), mat});
+            std::shared_ptr<Geometry> g;
+            if (nb::isinstance<KdTree>(tree_obj))
+                g = std::make_shared<KdGeometry>(nb::cast<const KdTree *>(tree_obj), opt, offset);
+            else
+                g = std::make_shared<SurfelGeometry>(nb::cast<const SurfelTree *>(tree_obj), opt, offset);
+            s.scene.objects.push_back({g, mat});
         }, "tree"_a, "options"_a, "offset"_a, "material"_a)
         .def("add_callback", [](PyRenderScene &s, nb::object obj, const Material &mat) {
             auto g = std::make_shared<PyGeometry>(obj);
@@ -503,31 +564,38 @@ NB_MODULE(_core, m) {
             d["count"] = acnt; d["index"] = aidx; d["boxes"] = abx; d["order"] = aord;
             return d;
         })
-        // One entry point per query, dispatching on the rays' dtype here: nanobind overloads
-        // would let a float64 array be converted to float32 when another argument needs a
-        // conversion pass, silently losing the precision that georeferenced rays need.
-        .def("cast", [](const SurfelTree &t, AnyArray rays, const TraceOptions &opt,
-                        double pixel_angle, int threads, bool want_stats) {
-            if (rays.dtype() == nb::dtype<float>())
-                return cast_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), opt,
-                                           float(pixel_angle), threads, want_stats);
-            if (rays.dtype() == nb::dtype<double>())
-                return cast_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), opt,
-                                            float(pixel_angle), threads, want_stats);
-            throw nb::type_error("rays: expected a float32 or float64 array");
-        }, "rays"_a, "options"_a, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true)
-        .def("occluded", [](const SurfelTree &t, AnyArray rays, CArray<float> t_max,
-                            const TraceOptions &opt, double t_min, double pixel_angle, int threads,
-                            bool want_stats) {
-            if (rays.dtype() == nb::dtype<float>())
-                return occluded_binding<float>(t, nb::cast<CArray<float>>(nb::cast(rays)), t_max, opt,
-                                               float(t_min), float(pixel_angle), threads, want_stats);
-            if (rays.dtype() == nb::dtype<double>())
-                return occluded_binding<double>(t, nb::cast<CArray<double>>(nb::cast(rays)), t_max, opt,
-                                                float(t_min), float(pixel_angle), threads, want_stats);
-            throw nb::type_error("rays: expected a float32 or float64 array");
-        }, "rays"_a, "t_max"_a, "options"_a, "t_min"_a = 0.0, "pixel_angle"_a = 0.0,
-           "threads"_a = 0, "stats"_a = true);
+        // One entry point per query, dispatching on the rays' dtype (see cast_any).
+        .def("cast", &cast_any<SurfelTree>, "rays"_a, "options"_a, "pixel_angle"_a = 0.0,
+             "threads"_a = 0, "stats"_a = true)
+        .def("occluded", &occluded_any<SurfelTree>, "rays"_a, "t_max"_a, "options"_a,
+             "t_min"_a = 0.0, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true);
+
+    // ---- the conventional KD-tree (kdtree.h): the paper's baseline ----------------------------
+    nb::class_<KdTree>(m, "KdTree")
+        .def(nb::new_(&make_kdtree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),
+             "origin"_a, "intersect_cost"_a = KdBuildOptions{}.intersect_cost,
+             "empty_bonus"_a = KdBuildOptions{}.empty_bonus, "max_leaf"_a = KdBuildOptions{}.max_leaf,
+             "max_depth"_a = 0)
+        .def_prop_ro("memory_bytes", &KdTree::memory_bytes)
+        .def_prop_ro("build_seconds", &KdTree::build_seconds)
+        .def_prop_ro("depth", &KdTree::depth)
+        .def_prop_ro("box_depth", [](const KdTree &) { return 0u; })
+        .def_prop_ro("n_nodes", [](const KdTree &t) { return t.nodes().size(); })
+        .def_prop_ro("n_surfels", &KdTree::n_surfels)
+        .def_prop_ro("n_references", [](const KdTree &t) { return t.slots().size(); })
+        .def_prop_ro("n_leaves", [](const KdTree &t) {
+            return size_t(std::count_if(t.nodes().begin(), t.nodes().end(),
+                                        [](const KdNode &nd) { return nd.is_leaf(); }));
+        })
+        .def_prop_ro("origin", [](const KdTree &t) -> std::array<double, 3> {
+            return {t.origin()[0], t.origin()[1], t.origin()[2]};
+        })
+        .def("cast", &cast_any<KdTree>, "rays"_a, "options"_a, "pixel_angle"_a = 0.0,
+             "threads"_a = 0, "stats"_a = true)
+        .def("occluded", &occluded_any<KdTree>, "rays"_a, "t_max"_a, "options"_a,
+             "t_min"_a = 0.0, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true);
+
+    pointviz_bindings::bind_readers(m);
 
     // ---- preprocessing: one function per step, each run with the GIL released ----------------
     nb::register_exception_translator([](const std::exception_ptr &p, void *) {

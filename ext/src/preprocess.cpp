@@ -7,7 +7,7 @@
 namespace pointviz {
 
 KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &progress) {
-    KdTree tree(in.points, in.n, threads, &progress);
+    KnnTree tree(in.points, in.n, threads, &progress);
     KnnOutput out;
     out.table = knn_all(tree, in.points, k, threads, &progress);
     const NeighbourTable &t = out.table;
@@ -33,7 +33,7 @@ struct Spatial {
     std::vector<double> points, viewpoints;
     std::vector<int32_t> group;
     PointsView view;
-    KdTree tree;
+    KnnTree tree;
 
     Spatial(const PointsView &in, int threads, Progress &progress)
         : tree(in.points, in.n, threads, &progress) {
@@ -111,7 +111,7 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
         r.flipped = orient_toward(in.points, normals, in.n, in.viewpoints, in.n_viewpoints);
         return r;
     }
-    KdTree tree(in.points, in.n, threads, &progress);
+    KnnTree tree(in.points, in.n, threads, &progress);
     NeighbourTable t = knn_all(tree, in.points, oopt.k, threads, &progress);
     return orient_mst(in.points, normals, t, oopt, &progress);
 }

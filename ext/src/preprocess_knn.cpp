@@ -45,7 +45,7 @@ namespace {
 uint32_t tree_depth(size_t n) {
     uint32_t d = 0;
     size_t largest = n;
-    while (largest > KdTree::kLeafSize) {
+    while (largest > KnnTree::kLeafSize) {
         largest = (largest + 1) / 2;
         ++d;
     }
@@ -58,12 +58,12 @@ constexpr uint32_t kSpawnMinPoints = 1u << 15;
 }  // namespace
 
 /// A point and its input index, moved as one record while the tree is built.
-struct KdRecord {
+struct KnnRecord {
     double p[3];
     uint32_t id;
 };
 
-KdTree::KdTree(const double *points, size_t n, int threads, Progress *progress) {
+KnnTree::KnnTree(const double *points, size_t n, int threads, Progress *progress) {
     if (n >= size_t(kNoIndex)) throw std::invalid_argument("points: too many for the KD-tree");
     depth_ = tree_depth(n);
     size_t inner = (size_t(1) << depth_) - 1;
@@ -71,7 +71,7 @@ KdTree::KdTree(const double *points, size_t n, int threads, Progress *progress) 
     dim_.assign(inner, 0);
     box_.assign(6 * (2 * inner + 1), 0.0);
     check_cancel(progress);
-    std::vector<KdRecord> rec(n);
+    std::vector<KnnRecord> rec(n);
     for (size_t i = 0; i < n; ++i) rec[i] = {{points[3 * i], points[3 * i + 1], points[3 * i + 2]}, uint32_t(i)};
     int spawn = 0;
     for (int t = resolve_threads(threads); t > 1; t /= 2) ++spawn;
@@ -85,7 +85,7 @@ KdTree::KdTree(const double *points, size_t n, int threads, Progress *progress) 
     }
 }
 
-void KdTree::build(KdRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
+void KnnTree::build(KnnRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
                    int spawn) {
     double *lo = &box_[6 * size_t(node)], *hi = lo + 3;
     if (depth == depth_) {
@@ -111,7 +111,7 @@ void KdTree::build(KdRecord *rec, uint32_t node, uint32_t begin, uint32_t end, u
         if (shi[a] - slo[a] > shi[axis] - slo[axis]) axis = a;
     uint32_t mid = begin + (end - begin) / 2;
     std::nth_element(rec + begin, rec + mid, rec + end,
-                     [axis](const KdRecord &a, const KdRecord &b) { return a.p[axis] < b.p[axis]; });
+                     [axis](const KnnRecord &a, const KnnRecord &b) { return a.p[axis] < b.p[axis]; });
     dim_[node] = uint8_t(axis);
     split_[node] = rec[mid].p[axis];
     if (spawn > 0 && end - begin >= kSpawnMinPoints) {
@@ -148,7 +148,7 @@ static inline double box_dist2(const double *q, const double *b) {
     return d;
 }
 
-void KdTree::search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
+void KnnTree::search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
                     KnnHeap &heap, uint32_t done_leaf) const {
     if (depth == depth_) {
         if (node == done_leaf) return;
@@ -172,12 +172,12 @@ void KdTree::search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
     }
 }
 
-uint32_t KdTree::query(const double q[3], uint32_t k, uint32_t skip, uint32_t *idx,
+uint32_t KnnTree::query(const double q[3], uint32_t k, uint32_t skip, uint32_t *idx,
                        double *d2) const {
     return query_near(q, kNoIndex, k, skip, idx, d2);
 }
 
-uint32_t KdTree::query_near(const double q[3], uint32_t start, uint32_t k, uint32_t skip,
+uint32_t KnnTree::query_near(const double q[3], uint32_t start, uint32_t k, uint32_t skip,
                             uint32_t *idx, double *d2) const {
     if (k == 0 || ids_.empty()) return 0;
     // room for one more, so that `skip` can be dropped afterwards
@@ -238,9 +238,9 @@ uint32_t KdTree::query_near(const double q[3], uint32_t start, uint32_t k, uint3
     return out;
 }
 
-void KdTree::renumber_in_tree_order() { std::iota(ids_.begin(), ids_.end(), 0u); }
+void KnnTree::renumber_in_tree_order() { std::iota(ids_.begin(), ids_.end(), 0u); }
 
-NeighbourTable knn_all(const KdTree &tree, const double *points, uint32_t k, int threads,
+NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
                        Progress *progress) {
     NeighbourTable t;
     t.n = tree.size();

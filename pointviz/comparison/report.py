@@ -172,6 +172,10 @@ def write_report(out: Path, doc: dict, writer: ImageWriter, overwrite: bool = Tr
         stab = stability_html(doc["stability"])
     labels = " | ".join(html.escape(s) for s in getattr(writer, "side_labels", []))
     ref = doc["reference"]
+    caveat = (f'<p class="note"><b>Note on the reference.</b> {html.escape(ref["note"])}</p>'
+              if ref.get("note") else "")
+    load = (f" Reading the input took {doc['load_seconds']:.2f} s, shared by every method and "
+            "not counted in their times." if "load_seconds" in doc else "")
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
 <title>pointviz compare: {html.escape(doc['input'])}</title>
 <style>body{{font-family:sans-serif;margin:1.5em;max-width:1300px}} img{{max-width:100%}}
@@ -182,8 +186,10 @@ figure img{{width:160px}} .note{{background:#f4f4f4;padding:.5em 1em}}</style></
 <p class="note">{doc['points']} points, {doc['image']['width']}×{doc['image']['height']} pixels,
 {doc['image']['spp']} samples per pixel. Reference: <b>{html.escape(ref['description'])}</b>.
 Every image is rendered by the same shading code (camera, lights, materials); only the geometry
-backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BVH) and rendering;
+backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BVH) and rendering
+(the whole render call); first image = their sum, each stage in metrics.json.{load}
 <a href="metrics.json">metrics.json</a> (schema: <a href="metrics.schema.json">metrics.schema.json</a>).</p>
+{caveat}
 <h2>Side by side</h2><p>{labels}</p><img src="{side}" alt="side by side: {labels}">
 <h2>Speed against accuracy</h2><img src="{chart}" alt="speed-accuracy chart">
 <h2>All methods and settings</h2>{entries_table(entries)}

@@ -18,23 +18,12 @@
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
+#include "check.h"
 
 using namespace pointviz;
 
 namespace {
 
-int g_checks = 0, g_failures = 0;
-
-#define CHECK(cond, ...)                                                        \
-    do {                                                                        \
-        ++g_checks;                                                             \
-        if (!(cond)) {                                                          \
-            ++g_failures;                                                       \
-            std::fprintf(stderr, "FAIL %s:%d: %s: ", __FILE__, __LINE__, #cond); \
-            std::fprintf(stderr, __VA_ARGS__);                                  \
-            std::fprintf(stderr, "\n");                                         \
-        }                                                                       \
-    } while (0)
 
 /// The batch queries, whichever of the core's two signatures is present (statistics as a
 /// pointer, or as a flag plus a reference): the tests survive that interface change.
@@ -540,8 +529,6 @@ void test_empty_and_oversized_builds_throw() {
 
 }  // namespace
 
-int run_preprocess_tests();  // preprocess_tests.cpp
-
 int main() {
     test_one_surfel();
     test_duplicates();
@@ -553,7 +540,6 @@ int main() {
     test_lod_and_interpolation_are_clean();
     test_render();
     test_empty_and_oversized_builds_throw();
-    std::printf("core_tests: %d checks, %d failures\n", g_checks, g_failures);
-    int preprocess_failures = run_preprocess_tests();
-    return g_failures == 0 && preprocess_failures == 0 ? 0 : 1;
+    std::printf("core_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
+    return pointviz_tests::g_failures == 0 ? 0 : 1;
 }

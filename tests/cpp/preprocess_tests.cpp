@@ -1,6 +1,5 @@
 // pointviz — tests of the preprocessing core (knn.h, normals.h, orient.h, radii.h,
-// surface_fit.h) on their own, run under ASan + UBSan by `make sanitize` (called from
-// core_tests.cpp's main). Neighbours are checked against brute force over all points; every
+// surface_fit.h) on their own, run under ASan + UBSan by `make sanitize`. Neighbours are checked against brute force over all points; every
 // step must give the same result on any thread count, stop with Cancelled once cancelled, and
 // give finite output on degenerate input (duplicates, a line, fewer points than neighbours).
 #include <algorithm>
@@ -11,23 +10,11 @@
 #include <vector>
 
 #include "pointviz/preprocess.h"
+#include "check.h"
 
 using namespace pointviz;
 
 namespace {
-
-int p_checks = 0, p_failures = 0;
-
-#define PCHECK(cond, ...)                                                       \
-    do {                                                                        \
-        ++p_checks;                                                             \
-        if (!(cond)) {                                                          \
-            ++p_failures;                                                       \
-            std::fprintf(stderr, "FAIL %s:%d: %s: ", __FILE__, __LINE__, #cond); \
-            std::fprintf(stderr, __VA_ARGS__);                                  \
-            std::fprintf(stderr, "\n");                                         \
-        }                                                                       \
-    } while (0)
 
 std::vector<double> sphere_points(size_t n, unsigned seed, double noise = 0.0) {
     std::mt19937 g(seed);
@@ -69,29 +56,29 @@ void test_knn_matches_brute_force() {
             for (int y = 0; y < 5; ++y) p.insert(p.end(), {3.0 + x, 3.0 + y, 0.0});
         size_t n = p.size() / 3;
         for (uint32_t k : {1u, 8u, 33u}) {
-            KdTree tree(p.data(), n, 2);
+            KnnTree tree(p.data(), n, 2);
             NeighbourTable t = knn_all(tree, p.data(), k, 3);
             size_t bad = 0;
             for (size_t i = 0; i < n; ++i) {
                 std::vector<uint32_t> want = brute_row(p, i, k);
                 bad += !std::equal(want.begin(), want.end(), t.row(i));
             }
-            PCHECK(bad == 0, "seed %u k %u: %zu rows differ from brute force", seed, k, bad);
+            CHECK(bad == 0, "seed %u k %u: %zu rows differ from brute force", seed, k, bad);
         }
     }
 }
 
 void test_tiny_clouds() {
     double one[3] = {1, 2, 3};
-    KdTree t1(one, 1);
+    KnnTree t1(one, 1);
     NeighbourTable a = knn_all(t1, one, 8, 1);
-    PCHECK(a.k == 0 && a.index.empty(), "one point: %u columns", a.k);
+    CHECK(a.k == 0 && a.index.empty(), "one point: %u columns", a.k);
     double two[6] = {0, 0, 0, 1, 0, 0};
-    KdTree t2(two, 2);
+    KnnTree t2(two, 2);
     NeighbourTable b = knn_all(t2, two, 8, 1);
-    PCHECK(b.k == 1 && b.row(0)[0] == 1 && b.row(1)[0] == 0, "two points: k %u", b.k);
-    KdTree t0(nullptr, 0);
-    PCHECK(t0.size() == 0, "empty tree");
+    CHECK(b.k == 1 && b.row(0)[0] == 1 && b.row(1)[0] == 0, "two points: k %u", b.k);
+    KnnTree t0(nullptr, 0);
+    CHECK(t0.size() == 0, "empty tree");
 }
 
 void test_identical_for_any_thread_count() {
@@ -123,13 +110,13 @@ void test_identical_for_any_thread_count() {
             for (size_t i = 0; i < v.n; ++i)
                 outward += ref_n[3 * i] * p[3 * i] + ref_n[3 * i + 1] * p[3 * i + 1] +
                                ref_n[3 * i + 2] * p[3 * i + 2] > 0;
-            PCHECK(outward == v.n, "MST orientation: %zu of %zu outward", outward, v.n);
+            CHECK(outward == v.n, "MST orientation: %zu of %zu outward", outward, v.n);
             bool finite = std::all_of(r.begin(), r.end(), [](float x) { return x > 0 && std::isfinite(x); });
-            PCHECK(finite, "radii must be positive and finite");
+            CHECK(finite, "radii must be positive and finite");
         } else {
-            PCHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
-            PCHECK(r == ref_r, "radii differ at %d threads", threads);
-            PCHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
+            CHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
+            CHECK(r == ref_r, "radii differ at %d threads", threads);
+            CHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
         }
     }
 }
@@ -151,18 +138,18 @@ void test_cancel_stops_every_step() {
     };
     std::vector<float> nrm(3 * v.n, 0.f);
     for (size_t i = 0; i < v.n; ++i) nrm[3 * i + 2] = 1.f;
-    PCHECK(cancelled([&](Progress &pr) { knn_points(v, 8, 2, pr); }), "knn");
-    PCHECK(cancelled([&](Progress &pr) { normals_points(v, NormalOptions{}, OrientOptions{}, pr); }),
+    CHECK(cancelled([&](Progress &pr) { knn_points(v, 8, 2, pr); }), "knn");
+    CHECK(cancelled([&](Progress &pr) { normals_points(v, NormalOptions{}, OrientOptions{}, pr); }),
            "normals");
-    PCHECK(cancelled([&](Progress &pr) { radii_points(v, nrm.data(), 10, CoverOptions{}, pr); }),
+    CHECK(cancelled([&](Progress &pr) { radii_points(v, nrm.data(), 10, CoverOptions{}, pr); }),
            "radii");
-    PCHECK(cancelled([&](Progress &pr) {
+    CHECK(cancelled([&](Progress &pr) {
                fit_points(v, nrm.data(), NormalOptions{}, OrientOptions{}, FitOptions{}, pr);
            }), "fit");
     // and progress is counted when not cancelled
     Progress pr;
     knn_points(v, 8, 2, pr);
-    PCHECK(pr.done.load() == pr.total.load() && pr.total.load() == v.n, "progress %llu of %llu",
+    CHECK(pr.done.load() == pr.total.load() && pr.total.load() == v.n, "progress %llu of %llu",
            (unsigned long long)pr.done.load(), (unsigned long long)pr.total.load());
 }
 
@@ -186,33 +173,33 @@ void test_degenerate_neighbourhoods_give_finite_output() {
             double l = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
             unit = unit && std::fabs(l - 1.0) < 1e-5;
         }
-        PCHECK(unit, "%zu points: every normal must be a finite unit vector", v.n);
+        CHECK(unit, "%zu points: every normal must be a finite unit vector", v.n);
         std::vector<float> r = radii_points(v, nr.est.normals.data(), 10, CoverOptions{}, pr);
         bool ok = std::all_of(r.begin(), r.end(), [](float x) { return std::isfinite(x) && x >= 0; });
-        PCHECK(ok, "%zu points: radii finite (0 marks a stack of duplicates)", v.n);
+        CHECK(ok, "%zu points: radii finite (0 marks a stack of duplicates)", v.n);
         FitOutput f = fit_points(v, nr.est.normals.data(), NormalOptions{}, OrientOptions{},
                                  FitOptions{}, pr);
         bool fin = std::all_of(f.fit.points.begin(), f.fit.points.end(),
                                [](double x) { return std::isfinite(x); });
-        PCHECK(fin, "%zu points: fitted positions finite", v.n);
+        CHECK(fin, "%zu points: fitted positions finite", v.n);
     }
     PointsView v;
     v.points = line.data();
     v.n = line.size() / 3;
     Progress pr;
     NormalsOutput nr = normals_points(v, NormalOptions{}, OrientOptions{}, pr);
-    PCHECK(nr.est.arbitrary == v.n, "a line: %zu of %zu normals arbitrary", nr.est.arbitrary, v.n);
+    CHECK(nr.est.arbitrary == v.n, "a line: %zu of %zu normals arbitrary", nr.est.arbitrary, v.n);
 }
 
 }  // namespace
 
-/// Runs the preprocessing tests; returns the number of failed checks.
-int run_preprocess_tests() {
+int main() {
     test_knn_matches_brute_force();
     test_tiny_clouds();
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();
     test_degenerate_neighbourhoods_give_finite_output();
-    std::printf("preprocess_tests: %d checks, %d failures\n", p_checks, p_failures);
-    return p_failures;
+    std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
+                pointviz_tests::g_failures);
+    return pointviz_tests::g_failures == 0 ? 0 : 1;
 }

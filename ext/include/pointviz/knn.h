@@ -17,7 +17,7 @@ constexpr uint32_t kNoIndex = 0xffffffffu;
 
 /// Static KD-tree over n points. Neighbours are ordered by (squared distance, index), so results
 /// do not depend on the tree's shape, the thread count or the order of the queries.
-class KdTree {
+class KnnTree {
 public:
     /// Points per leaf: a leaf's distances are one short loop over contiguous memory; smaller
     /// leaves mean deeper trees and more box tests per query. CPU seconds of the 10 nearest
@@ -26,7 +26,7 @@ public:
     static constexpr uint32_t kLeafSize = 16;
 
     /// `points`: (n, 3) row-major, finite. Copied (reordered) into the tree; n < 2^32 - 1.
-    KdTree(const double *points, size_t n, int threads = 0, Progress *progress = nullptr);
+    KnnTree(const double *points, size_t n, int threads = 0, Progress *progress = nullptr);
 
     size_t size() const { return ids_.size(); }
     /// Up to k nearest points of `q`, leaving out point `skip` (kNoIndex: none). Writes their
@@ -46,7 +46,7 @@ public:
     void renumber_in_tree_order();
 
 private:
-    void build(struct KdRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
+    void build(struct KnnRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
                int spawn);
     void search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
                 struct KnnHeap &heap, uint32_t done_leaf) const;
@@ -70,7 +70,7 @@ struct NeighbourTable {
 
 /// Fills a NeighbourTable for `points` (the same array the tree was built from), on `threads`
 /// workers. Polls `progress` (advancing it by the points done); throws Cancelled.
-NeighbourTable knn_all(const KdTree &tree, const double *points, uint32_t k, int threads,
+NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
                        Progress *progress = nullptr);
 
 }  // namespace pointviz

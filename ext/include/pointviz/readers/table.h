@@ -1,0 +1,126 @@
+// pointviz — reading a block of numeric rows from a file at disk speed: the data part of a PLY
+// element, of a PCD file or of an XYZ-style text file. The formats' headers are parsed (and
+// checked against the file) by the Python readers; this reads the rows they describe, in
+// parallel, with progress and cancellation, and never trusts a count it has not checked.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "pointviz/progress.h"
+#include "pointviz/readers/numbers.h"
+
+namespace pointviz {
+
+/// How the rows are stored.
+enum class Encoding : uint8_t { Ascii, BinaryLittle, BinaryBig };
+
+/// One block of rows of one file.
+struct TableSpec {
+    std::string path;              ///< the file
+    uint64_t offset = 0;           ///< first byte of the rows (after the header)
+    Encoding encoding = Encoding::Ascii;
+    /// Every column of a row in file order. Binary: their types give the row layout. ASCII: only
+    /// the count matters (every token is parsed as a double).
+    std::vector<Scalar> columns;
+    /// Rows to read; -1 (ASCII only): every line to the end of the file, skipping blank lines
+    /// and comment lines (first non-blank character '#' or "//").
+    int64_t rows = -1;
+    std::vector<uint32_t> wanted;  ///< columns returned, in this order (indices into `columns`)
+    /// ASCII: a row must hold exactly `columns.size()` values; else at least that many (the
+    /// extra values are ignored, as XYZ readers do).
+    bool exact_columns = true;
+    bool commas = false;           ///< ASCII: ',' and ';' separate values too
+    /// When set, the first three wanted columns (a position p, as a row) are returned as
+    /// p M + t, with M the first nine values (row-major 3x3) and t the last three: a scan placed
+    /// in the common frame of a registration as it is read.
+    bool transform = false;
+    std::array<double, 12> affine{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+};
+
+/// An allocator whose new elements are left uninitialised: the reader writes every value of a
+/// table, so zero-filling it first would be one more pass over memory.
+template <class T>
+struct UninitAllocator : std::allocator<T> {
+    template <class U>
+    struct rebind {
+        using other = UninitAllocator<U>;
+    };
+    UninitAllocator() = default;
+    template <class U>
+    UninitAllocator(const UninitAllocator<U> &) noexcept {}
+    template <class U>
+    void construct(U *) noexcept {}  // default-initialise: nothing for double
+    template <class U, class... Args>
+    void construct(U *p, Args &&...args) {
+        ::new (static_cast<void *>(p)) U(std::forward<Args>(args)...);
+    }
+};
+
+/// The values of a table, rows x columns, row-major.
+using TableValues = std::vector<double, UninitAllocator<double>>;
+
+/// Bounds and sum of positions: the first three wanted columns as read (before the affine
+/// map), over the rows where all three are finite.
+struct PositionStats {
+    std::array<double, 3> lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf}, sum{0, 0, 0};
+    uint64_t finite = 0;  ///< rows counted
+    static constexpr double kInf = std::numeric_limits<double>::infinity();
+
+    void add(const double *p) {
+        if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) return;
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], p[k]);
+            hi[k] = std::max(hi[k], p[k]);
+            sum[k] += p[k];
+        }
+        ++finite;
+    }
+    void merge(const PositionStats &o) {
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], o.lo[k]);
+            hi[k] = std::max(hi[k], o.hi[k]);
+            sum[k] += o.sum[k];
+        }
+        finite += o.finite;
+    }
+};
+
+/// The rows read from one TableSpec.
+struct Table {
+    TableValues values;            ///< rows x wanted.size(), row-major
+    uint64_t rows = 0;
+    /// ASCII with a row count: lines after the rows (a last line without '\n' counts), which
+    /// belong to the file's other elements.
+    uint64_t lines_after = 0;
+    /// Of the positions (when at least three columns are wanted); sums are merged in row order,
+    /// so they do not depend on the thread count.
+    PositionStats positions;
+};
+
+/// The data ends before the rows the spec asks for.
+struct TruncatedData : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+/// A row that is not what the spec says: too few or too many values, a token that is not a
+/// number. The message names the row (0-based, counted from the first row of the block).
+struct MalformedData : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+/// Reads every spec into `out` (resized to match). Several specs are read in parallel, one per
+/// worker; a single spec is split across workers by rows. Results never depend on `threads`.
+/// Throws TruncatedData, MalformedData, std::runtime_error (I/O, bad spec) or Cancelled; with
+/// several specs the error of the lowest-numbered failing spec is thrown.
+void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+                 Progress &progress);
+
+}  // namespace pointviz

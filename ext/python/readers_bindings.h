@@ -1,0 +1,93 @@
+// pointviz._core — the table reader (ext/include/pointviz/readers/table.h): type conversion only.
+// Included once by bindings.cpp; `bind_readers(m)` adds the block to the module.
+#pragma once
+
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+#include <nanobind/stl/array.h>
+
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include "pointviz/progress.h"
+#include "pointviz/readers/table.h"
+
+namespace pointviz_bindings {
+
+namespace nb = nanobind;
+
+/// The long call, with the GIL released: one call taking a Progress, so that a runner on a
+/// worker thread (progress reports, Ctrl-C) can drive it as is.
+inline std::vector<pointviz::Table> read_tables_released(
+        const std::vector<pointviz::TableSpec> &specs, int threads, pointviz::Progress &progress) {
+    std::vector<pointviz::Table> out;
+    nb::gil_scoped_release release;
+    pointviz::read_tables(specs, out, threads, progress);
+    return out;
+}
+
+/// (rows, columns) float64 numpy array that takes over the table's buffer (no copy).
+inline nb::object table_array(pointviz::Table &t, size_t ncols) {
+    auto *buf = new pointviz::TableValues(std::move(t.values));
+    nb::capsule owner(buf, [](void *p) noexcept { delete static_cast<pointviz::TableValues *>(p); });
+    size_t shape[2] = {size_t(t.rows), ncols};
+    return nb::cast(nb::ndarray<nb::numpy, double>(buf->empty() ? nullptr : buf->data(), 2, shape,
+                                                   owner));
+}
+
+inline void bind_readers(nb::module_ &m) {
+    using namespace nb::literals;
+    using pointviz::Encoding;
+    using pointviz::Scalar;
+    using pointviz::TableSpec;
+
+    nb::enum_<Scalar>(m, "Scalar")
+        .value("i8", Scalar::I8).value("u8", Scalar::U8)
+        .value("i16", Scalar::I16).value("u16", Scalar::U16)
+        .value("i32", Scalar::I32).value("u32", Scalar::U32)
+        .value("f32", Scalar::F32).value("f64", Scalar::F64);
+    nb::enum_<Encoding>(m, "Encoding")
+        .value("ascii", Encoding::Ascii)
+        .value("binary_little_endian", Encoding::BinaryLittle)
+        .value("binary_big_endian", Encoding::BinaryBig);
+    nb::class_<TableSpec>(m, "TableSpec")
+        .def(nb::init<>())
+        .def_rw("path", &TableSpec::path)
+        .def_rw("offset", &TableSpec::offset)
+        .def_rw("encoding", &TableSpec::encoding)
+        .def_rw("columns", &TableSpec::columns)
+        .def_rw("rows", &TableSpec::rows)
+        .def_rw("wanted", &TableSpec::wanted)
+        .def_rw("exact_columns", &TableSpec::exact_columns)
+        .def_rw("commas", &TableSpec::commas)
+        .def_rw("transform", &TableSpec::transform)
+        .def_rw("affine", &TableSpec::affine);
+    nb::exception<pointviz::TruncatedData>(m, "TruncatedData", PyExc_ValueError);
+    nb::exception<pointviz::MalformedData>(m, "MalformedData", PyExc_ValueError);
+
+    m.def("read_tables", [](const std::vector<TableSpec> &specs, int threads) {
+        pointviz::Progress progress;
+        std::vector<pointviz::Table> tables = read_tables_released(specs, threads, progress);
+        nb::list out;
+        for (size_t i = 0; i < tables.size(); ++i) {
+            const pointviz::PositionStats &ps = tables[i].positions;
+            nb::dict d;
+            d["values"] = table_array(tables[i], specs[i].wanted.size());
+            d["lines_after"] = tables[i].lines_after;
+            d["lo"] = ps.lo;
+            d["hi"] = ps.hi;
+            d["sum"] = ps.sum;
+            d["finite"] = ps.finite;
+            out.append(d);
+        }
+        return out;
+    }, "specs"_a, "threads"_a = 0,
+    "Read the numeric rows each TableSpec describes (several files in parallel). Returns one dict "
+    "per spec: values ((rows, len(wanted)) float64), lines_after, and lo, hi, sum, finite of the "
+    "positions as read (before the affine map).");
+}
+
+}  // namespace pointviz_bindings

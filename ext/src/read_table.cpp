@@ -1,0 +1,327 @@
+// pointviz — reading numeric rows from PLY, PCD and XYZ data blocks.
+#include "pointviz/readers/table.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <mutex>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "pointviz/parallel.h"
+
+namespace pointviz {
+namespace {
+
+/// Rows parsed between cancellation checks and progress updates (a few ms of ASCII parsing).
+constexpr size_t kRowGrain = 16384;
+
+/// A read-only memory map of a file's bytes [offset, offset + length): the page cache is read in
+/// place, with neither a zero-filled buffer nor a copy. (A file truncated by another process while
+/// it is mapped would fault; files are not expected to change while they load.)
+class MappedBytes {
+  public:
+    MappedBytes(const std::string &path, uint64_t offset, uint64_t limit) {
+        int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd < 0) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
+        struct stat st;
+        if (::fstat(fd, &st) != 0) {
+            ::close(fd);
+            throw std::runtime_error("cannot stat " + path + ": " + std::strerror(errno));
+        }
+        uint64_t end = uint64_t(st.st_size);
+        if (end < offset) {
+            ::close(fd);
+            throw TruncatedData("the file ends at byte " + std::to_string(end) +
+                                ", before its data starts at byte " + std::to_string(offset));
+        }
+        size_ = size_t(std::min(end - offset, limit));
+        if (size_ > 0) {
+            // map from the page holding `offset`
+            const uint64_t page = uint64_t(::sysconf(_SC_PAGESIZE));
+            const uint64_t start = offset / page * page;
+            map_len_ = size_t(offset - start) + size_;
+            map_ = ::mmap(nullptr, map_len_, PROT_READ, MAP_PRIVATE, fd, off_t(start));
+            if (map_ == MAP_FAILED) {
+                map_ = nullptr;
+                ::close(fd);
+                throw std::runtime_error("cannot map " + path + ": " + std::strerror(errno));
+            }
+            ::madvise(map_, map_len_, MADV_SEQUENTIAL | MADV_WILLNEED);
+            data_ = static_cast<const char *>(map_) + (offset - start);
+        }
+        ::close(fd);
+    }
+    ~MappedBytes() {
+        if (map_) ::munmap(map_, map_len_);
+    }
+    MappedBytes(const MappedBytes &) = delete;
+    MappedBytes &operator=(const MappedBytes &) = delete;
+
+    const char *data() const { return data_; }
+    size_t size() const { return size_; }
+
+  private:
+    void *map_ = nullptr;
+    size_t map_len_ = 0;
+    const char *data_ = "";
+    size_t size_ = 0;
+};
+
+std::string row_name(uint64_t row) { return "row " + std::to_string(row); }
+
+/// A token for an error message: printable ASCII as is, other bytes as \xNN (messages must be
+/// valid text whatever the file holds), at most kMaxQuoted bytes of it.
+std::string quoted_token(const char *b, const char *e) {
+    constexpr ptrdiff_t kMaxQuoted = 40;
+    static const char hex[] = "0123456789abcdef";
+    std::string out;
+    for (const char *p = b; p != e && p - b < kMaxQuoted; ++p) {
+        unsigned char c = static_cast<unsigned char>(*p);
+        if (c >= 0x20 && c < 0x7f && c != '\\') {
+            out += char(c);
+        } else {
+            out += "\\x";
+            out += hex[c >> 4];
+            out += hex[c & 15];
+        }
+    }
+    return out;
+}
+
+/// First error of a parallel loop, by the lowest item that failed. Errors do not stop the loop
+/// (only cancellation does), so the error reported never depends on timing or thread count.
+struct FirstError {
+    std::mutex mu;
+    std::exception_ptr err;
+    uint64_t item = ~uint64_t(0);
+
+    void record(uint64_t at) {
+        std::lock_guard<std::mutex> lock(mu);
+        if (at < item) {
+            item = at;
+            err = std::current_exception();
+        }
+    }
+    /// Throws the first error, or Cancelled if the loop was stopped before finishing.
+    void rethrow(const Progress &progress) {
+        if (err) std::rethrow_exception(err);
+        progress.check();
+    }
+};
+
+/// Parses one ASCII row [b, e) into `dst` (the wanted columns); `slot[c]` is the output index of
+/// column c or -1.
+void parse_row(const char *b, const char *e, const TableSpec &spec, const std::vector<int> &slot,
+               double *dst, uint64_t row) {
+    const size_t ncols = spec.columns.size();
+    size_t c = 0;
+    const char *p = b;
+    for (;;) {
+        while (p != e && is_separator(*p, spec.commas)) ++p;
+        if (p == e) break;
+        const char *t = p;
+        while (p != e && !is_separator(*p, spec.commas)) ++p;
+        if (c < ncols) {
+            double v;
+            if (!parse_number(t, p, v)) {
+                throw MalformedData(row_name(row) + " holds a non-number '" +
+                                    quoted_token(t, p) + "'");
+            }
+            if (slot[c] >= 0) dst[slot[c]] = v;
+        }
+        ++c;
+        if (c > ncols && !spec.exact_columns) break;  // extra values are ignored
+    }
+    if (c < ncols || (spec.exact_columns && c != ncols))
+        throw MalformedData(row_name(row) + " has " + std::to_string(c) + " values, expected " +
+                            std::to_string(ncols));
+}
+
+/// Whether the line [b, e) holds nothing to read: blank, or a comment (text tables only).
+bool skip_line(const char *b, const char *e) {
+    while (b != e && is_separator(*b, false)) ++b;
+    return b == e || *b == '#' || (e - b >= 2 && b[0] == '/' && b[1] == '/');
+}
+
+/// Positions (first three values) of rows [b, e): adds them to `stats` as read, then applies
+/// the spec's affine map.
+void place_rows(const TableSpec &spec, double *values, size_t nw, size_t b, size_t e,
+                PositionStats &stats) {
+    if (nw < 3) return;
+    const std::array<double, 12> &m = spec.affine;
+    for (size_t r = b; r < e; ++r) {
+        double *v = values + r * nw;
+        stats.add(v);
+        if (!spec.transform) continue;
+        const double x = v[0], y = v[1], z = v[2];
+        for (int j = 0; j < 3; ++j) v[j] = x * m[j] + y * m[3 + j] + z * m[6 + j] + m[9 + j];
+    }
+}
+
+/// Per-chunk statistics merged in chunk order (deterministic sums).
+void merge_stats(const std::vector<PositionStats> &parts, PositionStats &out) {
+    out = PositionStats{};
+    for (const PositionStats &p : parts) out.merge(p);
+}
+
+void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
+                Progress &progress, const std::vector<int> &slot) {
+    const char *data = buf.data();
+    const char *end = data + buf.size();
+    // Begin/end byte offsets of each row's line.
+    std::vector<uint64_t> bounds;
+    if (spec.rows >= 0)  // every row takes at least two bytes: a lying count cannot reserve more
+        bounds.reserve(2 * std::min<size_t>(size_t(spec.rows), buf.size() / 2 + 1));
+    const char *p = data;
+    size_t since_check = 0;
+    while (p < end && (spec.rows < 0 || int64_t(bounds.size() / 2) < spec.rows)) {
+        const char *nl = static_cast<const char *>(std::memchr(p, '\n', size_t(end - p)));
+        const char *le = nl ? nl : end;
+        if (spec.rows >= 0 || !skip_line(p, le)) {
+            bounds.push_back(uint64_t(p - data));
+            bounds.push_back(uint64_t(le - data));
+        }
+        p = nl ? nl + 1 : end;
+        if (++since_check == kRowGrain) {
+            since_check = 0;
+            progress.check();
+        }
+    }
+    const uint64_t nrows = bounds.size() / 2;
+    if (spec.rows >= 0 && nrows < uint64_t(spec.rows))
+        throw TruncatedData("the data ends after " + std::to_string(nrows) + " of the " +
+                            std::to_string(spec.rows) + " rows");
+    if (spec.rows >= 0) {  // lines after the rows, for the file's other elements
+        uint64_t after = 0;
+        const char *q = p;
+        while (q < end) {
+            const char *nl = static_cast<const char *>(std::memchr(q, '\n', size_t(end - q)));
+            ++after;
+            q = nl ? nl + 1 : end;
+        }
+        out.lines_after = after;
+    }
+    const size_t nw = spec.wanted.size();
+    out.rows = nrows;
+    out.values.resize(size_t(nrows) * nw);
+    FirstError first;
+    std::atomic<uint64_t> advanced{0};
+    std::vector<PositionStats> parts((size_t(nrows) + kRowGrain - 1) / kRowGrain);
+    parallel_for(size_t(nrows), kRowGrain, threads, [&](size_t b, size_t e, int) {
+        try {
+            progress.check();
+            for (size_t r = b; r < e; ++r)
+                parse_row(data + bounds[2 * r], data + bounds[2 * r + 1], spec, slot,
+                          out.values.data() + r * nw, r);
+            place_rows(spec, out.values.data(), nw, b, e, parts[b / kRowGrain]);
+            const uint64_t bytes = bounds[2 * (e - 1) + 1] - bounds[2 * b];
+            advanced.fetch_add(bytes, std::memory_order_relaxed);
+            progress.advance(bytes);
+        } catch (...) {
+            first.record(b);
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+    merge_stats(parts, out.positions);
+    progress.advance(buf.size() - advanced.load());  // newlines, skipped and trailing lines
+}
+
+void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
+                 Progress &progress) {
+    std::vector<size_t> col_offset(spec.columns.size());
+    size_t row_bytes = 0;
+    for (size_t c = 0; c < spec.columns.size(); ++c) {
+        col_offset[c] = row_bytes;
+        row_bytes += scalar_size(spec.columns[c]);
+    }
+    if (spec.rows < 0) throw std::runtime_error("binary tables need a row count");
+    const uint64_t nrows = uint64_t(spec.rows);
+    if (row_bytes == 0) throw std::runtime_error("binary rows of zero bytes");
+    if (nrows > buf.size() / row_bytes)
+        throw TruncatedData("the rows need " + std::to_string(nrows) + " x " +
+                            std::to_string(row_bytes) + " bytes, the data has " +
+                            std::to_string(buf.size()));
+    const bool swap = spec.encoding == Encoding::BinaryBig;
+    const size_t nw = spec.wanted.size();
+    out.rows = nrows;
+    out.values.resize(size_t(nrows) * nw);
+    FirstError first;
+    const size_t grain = kRowGrain * 8;
+    std::vector<PositionStats> parts((size_t(nrows) + grain - 1) / grain);
+    parallel_for(size_t(nrows), grain, threads, [&](size_t b, size_t e, int) {
+        try {
+            progress.check();
+            for (size_t r = b; r < e; ++r) {
+                const char *row = buf.data() + r * row_bytes;
+                double *dst = out.values.data() + r * nw;
+                for (size_t k = 0; k < nw; ++k) {
+                    uint32_t c = spec.wanted[k];
+                    dst[k] = decode_scalar(row + col_offset[c], spec.columns[c], swap);
+                }
+            }
+            place_rows(spec, out.values.data(), nw, b, e, parts[b / grain]);
+            progress.advance((e - b) * row_bytes);
+        } catch (...) {
+            first.record(b);
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+    merge_stats(parts, out.positions);
+}
+
+void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress) {
+    if (spec.columns.empty()) throw std::runtime_error("a table needs at least one column");
+    std::vector<int> slot(spec.columns.size(), -1);
+    for (size_t k = 0; k < spec.wanted.size(); ++k) {
+        if (spec.wanted[k] >= spec.columns.size())
+            throw std::runtime_error("wanted column " + std::to_string(spec.wanted[k]) +
+                                     " of a " + std::to_string(spec.columns.size()) +
+                                     "-column table");
+        slot[spec.wanted[k]] = int(k);
+    }
+    uint64_t limit = ~uint64_t(0);
+    if (spec.encoding != Encoding::Ascii && spec.rows >= 0) {  // the rows, not what follows
+        uint64_t row_bytes = 0;
+        for (Scalar c : spec.columns) row_bytes += scalar_size(c);
+        if (uint64_t(spec.rows) <= ~uint64_t(0) / row_bytes) limit = uint64_t(spec.rows) * row_bytes;
+    }
+    MappedBytes buf(spec.path, spec.offset, limit);
+    progress.total.fetch_add(buf.size(), std::memory_order_relaxed);  // units: bytes
+    progress.check();
+    if (spec.encoding == Encoding::Ascii)
+        read_ascii(spec, buf, out, threads, progress, slot);
+    else
+        read_binary(spec, buf, out, threads, progress);
+}
+
+}  // namespace
+
+void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+                 Progress &progress) {
+    out.assign(specs.size(), Table{});
+    if (specs.size() == 1) {
+        read_one(specs[0], out[0], threads, progress);
+        return;
+    }
+    // Several files (the scans of a .conf): one file per worker, each read serially.
+    FirstError first;
+    parallel_for(specs.size(), 1, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            try {
+                read_one(specs[i], out[i], 1, progress);
+            } catch (...) {
+                first.record(i);
+            }
+        }
+    }, &progress.cancel);
+    first.rethrow(progress);
+}
+
+}  // namespace pointviz

@@ -1,0 +1,185 @@
+"""What every reader shares: building a PointCloud from loaded arrays (dropping non-finite rows
+with a note, sub-sampling), meshes to clouds, and keeping Open3D quiet."""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..cloud import PointCloud
+from ..errors import FileFormatError, require
+from ..validate import check_coordinates, check_points_fit
+
+
+@contextlib.contextmanager
+def quiet_open3d(o3d):
+    """Silence Open3D's printed warnings; failures are detected from the results instead."""
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        yield
+
+
+def finite_rows(path: Path, points: np.ndarray, notes: list[str]) -> np.ndarray | None:
+    """Mask of finite rows, or None if all are finite; notes and warns about the others."""
+    if np.isfinite(points).all():  # the usual case, without a slow per-row reduction
+        return None
+    finite = np.isfinite(points).all(axis=1)
+    dropped = int((~finite).sum())
+    msg = (
+        f"dropped {dropped} of {len(points)} points with NaN/inf coordinates "
+        "(holes of an organised cloud?)"
+    )
+    notes.append(msg)
+    warnings.warn(f"{path.name}: {msg}", stacklevel=4)
+    if not finite.any():
+        raise FileFormatError(f"{path}: all {len(points)} points have NaN/inf coordinates")
+    return finite
+
+
+def usable_normals(normals, keep, notes: list[str]):
+    """Drop loaded normals that are unusable (non-finite or zero); they are then estimated."""
+    if normals is None:
+        return None
+    normals = normals if keep is None else normals[keep]
+    n = np.asarray(normals, dtype=np.float64)
+    length2 = n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2]  # by columns: fast
+    bad = ~np.isfinite(length2) | (length2 == 0)
+    if bad.any():
+        notes.append(
+            f"ignored the file's normals: {int(bad.sum())} are zero or not finite; "
+            "normals are estimated instead"
+        )
+        return None
+    return normals
+
+
+def subsample(cloud_kw: dict, n: int, sample, rng, notes: list[str]) -> dict:
+    """Keep a uniformly random subset of ``sample`` rows of every per-point array."""
+    if sample is None or sample >= n:
+        if sample is not None:
+            notes.append(f"sample={sample} >= {n} points: kept all points")
+        return cloud_kw
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    idx = np.sort(gen.choice(n, size=int(sample), replace=False))
+    notes.append(f"kept a random subset of {sample} of {n} points")
+    return {
+        k: (v[idx] if isinstance(v, np.ndarray) and v.ndim >= 1 and len(v) == n else v)
+        for k, v in cloud_kw.items()
+    }
+
+
+def point_cloud(path, points, normals=None, colors=None, *, sample=None, rng=None, **extra):
+    """Build a :class:`PointCloud` from loaded arrays, dropping non-finite points."""
+    notes = list(extra.pop("notes", []))
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        raise FileFormatError(f"{path}: no points could be read (empty or unparsable file)")
+    keep = finite_rows(path, points, notes)
+    check_coordinates(points, str(path))
+    normals = usable_normals(normals, keep, notes)
+    fields = {"points": points, "normals": normals, "colors": colors, **extra}
+    if keep is not None:
+        fields = {
+            k: (
+                v[keep]
+                if k != "normals"
+                and isinstance(v, np.ndarray)
+                and v.ndim >= 1
+                and len(v) == len(keep)
+                else v
+            )
+            for k, v in fields.items()
+        }
+    fields = subsample(fields, len(fields["points"]), sample, rng, notes)
+    return PointCloud(**fields, notes=notes)
+
+
+def mesh_cloud(
+    path, vertices, faces, normals=None, colors=None, *, sample=None, rng=None, merge=False, up=None
+):
+    """A mesh's vertices (normals from the faces unless given) or ``sample`` surface points."""
+    notes: list[str] = []
+    if sample is not None:
+        check_points_fit(sample, "sample")
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(vertices) == 0:
+        raise FileFormatError(f"{path}: the mesh has no vertices (empty or unparsable file)")
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        raise FileFormatError(f"{path}: {bad} mesh vertices have NaN/inf coordinates")
+    check_coordinates(vertices, str(path))
+    if merge:
+        # OBJ/STL/glTF readers split a vertex wherever its texture coordinate or normal changes
+        # (STL stores none at all): merge exact duplicates so each surface point is one surfel
+        uniq, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+        if len(uniq) < len(vertices):
+            order = np.argsort(first)  # keep the file's vertex order
+            rank = np.empty_like(order)
+            rank[order] = np.arange(len(order))
+            notes.append(f"merged {len(vertices) - len(uniq)} duplicate vertices (seams)")
+            faces = rank[inverse.reshape(-1)][faces]
+            keep = first[order]
+            vertices = vertices[keep]
+            normals = None  # re-derived from the faces: split normals no longer apply
+            colors = None if colors is None else np.asarray(colors)[keep]
+    if len(faces) == 0:
+        return point_cloud(
+            path,
+            vertices,
+            normals,
+            colors,
+            sample=sample,
+            rng=rng,
+            up=up,
+            notes=notes + ["the mesh has no faces: loaded its vertices"],
+        )
+    if normals is not None and sample is None:
+        normals = usable_normals(np.asarray(normals, dtype=np.float64), None, notes)
+        if normals is not None:
+            return PointCloud(vertices, normals, colors=colors, up=up, notes=notes)
+    cloud = PointCloud.from_mesh(
+        vertices, faces, sample=sample, rng=rng, colors=colors, up=up, notes=notes
+    )
+    if sample is not None:
+        cloud.notes.append(f"sampled {sample} points on {len(faces)} faces")
+    return cloud
+
+
+def cloud_from_o3d_points(path, pcd, sample, rng) -> PointCloud:
+    return point_cloud(
+        path,
+        np.asarray(pcd.points),
+        np.asarray(pcd.normals) if pcd.has_normals() else None,
+        np.asarray(pcd.colors) if pcd.has_colors() else None,
+        sample=sample,
+        rng=rng,
+    )
+
+
+def mesh_from_o3d(path, mesh, sample, rng, merge=False) -> PointCloud:
+    return mesh_cloud(
+        path,
+        np.asarray(mesh.vertices),
+        np.asarray(mesh.triangles),
+        np.asarray(mesh.vertex_normals) if mesh.has_vertex_normals() else None,
+        np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else None,
+        sample=sample,
+        rng=rng,
+        merge=merge,
+    )
+
+
+
+def read_o3d_points(path: Path, sample, rng) -> PointCloud:
+    """A point file through Open3D's reader (formats the core does not read)."""
+    o3d = require("open3d", "io")
+    with quiet_open3d(o3d):
+        pcd = o3d.io.read_point_cloud(
+            str(path), remove_nan_points=False, remove_infinite_points=False
+        )
+    if len(pcd.points) == 0:
+        raise FileFormatError(f"{path}: no points could be read (empty or unparsable file)")
+    return cloud_from_o3d_points(path, pcd, sample, rng)

@@ -1,0 +1,184 @@
+"""PCD (Point Cloud Library): header forensics (Open3D reads garbage sizes, allocates without
+bound or crashes on crafted headers) and the reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..cloud import PointCloud
+from ..errors import FileFormatError
+from ..validate import check_points_fit
+from . import table
+from .common import point_cloud, read_o3d_points
+
+# Largest PCD header (text lines before DATA) we accept.
+_PCD_MAX_HEADER = 1 << 16
+# PCD v0.7 header lines: all known ones, and those the format requires (Open3D reads garbage
+# sizes, and may allocate without bound, when one is missing).
+_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT",
+             "POINTS", "DATA")
+_PCD_REQUIRED = ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "POINTS", "DATA")
+# Most values one PCD field may hold: descriptors reach a few hundred (VFH: 308); Open3D's reader
+# overflows (and crashes) on counts near 2^31.
+_PCD_MAX_COUNT = 1 << 16
+
+
+def _pcd_header(path: Path) -> dict | None:
+    """Parse a PCD header; None if the file does not look like PCD (Open3D will then fail)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_PCD_MAX_HEADER)
+    fields: dict[str, list[str]] = {}
+    offset = 0
+    for raw in head.split(b"\n"):
+        offset += len(raw) + 1
+        line = raw.decode("latin-1").strip()
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        fields[key.upper()] = values
+        if key.upper() == "DATA":
+            fields["_offset"] = [str(offset)]
+            return fields
+    return None
+
+
+def _check_pcd(path: Path) -> dict:
+    """Check a PCD header's counts against the file before anything allocates for them.
+
+    Returns
+    -------
+    dict
+        ``fields`` (names), ``sizes``, ``types``, ``counts`` (one per field), ``points``,
+        ``mode`` ("ascii", "binary", "binary_compressed") and ``offset`` of the data.
+    """
+    h = _pcd_header(path)
+    if h is None:
+        raise FileFormatError(f"{path}: not a PCD file (no DATA line in the header)")
+
+    unknown = sorted(set(h) - set(_PCD_KEYS) - {"_offset"})
+    if unknown:
+        raise FileFormatError(f"{path}: PCD header: unknown line(s) {', '.join(unknown)!r}")
+    missing = [k for k in _PCD_REQUIRED if k not in h]
+    if missing:
+        raise FileFormatError(f"{path}: PCD header: missing {' '.join(missing)} line(s)")
+
+    def ints(key, default=None):
+        if key not in h:
+            if default is None:
+                raise FileFormatError(f"{path}: PCD header has no {key} line")
+            return default
+        try:
+            vals = [int(v) for v in h[key]]
+        except ValueError:
+            raise FileFormatError(f"{path}: PCD header: {key} must be integers, got {h[key]}") from None
+        if any(v < 0 for v in vals):
+            raise FileFormatError(f"{path}: PCD header: negative {key} {h[key]}")
+        return vals
+
+    width, height = ints("WIDTH", [0])[0], ints("HEIGHT", [1])[0]
+    points = ints("POINTS", [width * height])[0]
+    nfields = len(h.get("FIELDS", []))
+    sizes = ints("SIZE", [4] * nfields)
+    counts = ints("COUNT", [1] * len(sizes))
+    types = h.get("TYPE", ["F"] * len(sizes))
+    if not (len(sizes) == len(counts) == len(types) == nfields) or nfields == 0:
+        raise FileFormatError(
+            f"{path}: PCD header: FIELDS, SIZE, TYPE and COUNT must have the same, non-zero "
+            f"length, got {nfields}, {len(sizes)}, {len(types)} and {len(counts)}"
+        )
+    if any(sz not in (1, 2, 4, 8) for sz in sizes) or any(t.upper() not in "FIU" for t in types):
+        raise FileFormatError(f"{path}: PCD header: bad SIZE {sizes} or TYPE {types}")
+    if any(not 1 <= c <= _PCD_MAX_COUNT for c in counts):
+        raise FileFormatError(f"{path}: PCD header: COUNT values must be in 1..{_PCD_MAX_COUNT}, got {counts}")
+    if width * height != points:
+        raise FileFormatError(
+            f"{path}: PCD header: WIDTH x HEIGHT = {width * height} but POINTS = {points}"
+        )
+    row = sum(s * c for s, c in zip(sizes, counts))
+    mode = (h.get("DATA") or ["?"])[0].lower()
+    start = int(h["_offset"][0])
+    size = path.stat().st_size
+    if mode == "binary":
+        need = start + points * row
+        if size < need:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the header declares {points} points ({need} bytes), "
+                f"the file has {size}"
+            )
+    elif mode == "ascii":  # every value takes at least two bytes ("0 ")
+        if 2 * points * sum(counts) > size - start + 1:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the header declares {points} points, the file has only "
+                f"{size - start} bytes of data"
+            )
+    elif mode == "binary_compressed":
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            sizes_raw = fh.read(8)
+        if len(sizes_raw) < 8:
+            raise FileFormatError(f"{path}: truncated PCD: no compressed data")
+        compressed, uncompressed = np.frombuffer(sizes_raw, dtype="<u4")
+        if int(uncompressed) != points * row:
+            raise FileFormatError(
+                f"{path}: corrupt PCD: the compressed block expands to {int(uncompressed)} bytes, "
+                f"the header's {points} points need {points * row}"
+            )
+        if start + 8 + int(compressed) > size:
+            raise FileFormatError(
+                f"{path}: truncated PCD: the compressed block needs {int(compressed)} bytes, "
+                f"the file has {size - start - 8}"
+            )
+    else:
+        raise FileFormatError(f"{path}: PCD header: unknown DATA mode {mode!r}")
+    check_points_fit(points, str(path))
+    return {"fields": list(h["FIELDS"]), "sizes": sizes, "types": [t.upper() for t in types],
+            "counts": counts, "points": points, "mode": mode, "offset": start}
+
+
+def read_pcd(path: Path, sample, rng) -> PointCloud:
+    """A PCD file: ASCII and binary data in the core, binary_compressed through Open3D."""
+    h = _check_pcd(path)
+    if h["mode"] == "binary_compressed":
+        return read_o3d_points(path, sample, rng)
+    columns, names = [], []
+    for name, size, typ, count in zip(h["fields"], h["sizes"], h["types"], h["counts"]):
+        scalar = table.PCD_SCALARS.get((typ, size))
+        if scalar is None:  # 8-byte integers: not a coordinate type; read as raw bytes
+            scalar = "u8"
+            count *= size
+        if name in ("rgb", "rgba") and size == 4 and count == 1:
+            scalar = "u32"  # a packed colour: the float's bits are 0xAARRGGBB
+        columns += [scalar] * count
+        names += [name] + [f"{name}#{k}" for k in range(1, count)]
+    want = [n for n in ("x", "y", "z") if n in names]
+    if len(want) < 3:
+        raise FileFormatError(f"{path}: the PCD file has no x, y and z fields")
+    if all(n in names for n in ("normal_x", "normal_y", "normal_z")):
+        want += ["normal_x", "normal_y", "normal_z"]
+    packed = next((n for n in ("rgb", "rgba") if n in names and f"{n}#1" not in names), None)
+    if packed is not None:
+        want.append(packed)
+    mode = "ascii" if h["mode"] == "ascii" else "binary_little_endian"
+    spec = table.spec(path, offset=h["offset"], encoding=mode, columns=columns, rows=h["points"],
+                      wanted=[names.index(n) for n in want])
+    try:
+        values = table.read([spec])[0].values
+    except table.TruncatedData as exc:
+        raise FileFormatError(f"{path}: truncated PCD: {exc}") from None
+    except table.MalformedData as exc:
+        raise FileFormatError(f"{path}: malformed ASCII PCD: {exc}") from None
+    except RuntimeError as exc:
+        raise FileFormatError(f"{path}: could not read the PCD file ({exc})") from None
+    normals = values[:, 3:6] if "normal_x" in want else None
+    colors = None
+    if packed is not None:
+        raw = values[:, -1]
+        if mode == "ascii" and h["types"][h["fields"].index(packed)] == "F":
+            bits = raw.astype(np.float32).view(np.uint32)  # written as the float of the bits
+        else:
+            bits = np.nan_to_num(raw).astype(np.uint32)
+        rgb = np.column_stack([(bits >> 16) & 255, (bits >> 8) & 255, bits & 255])
+        colors = rgb.astype(np.float32) / 255.0
+    return point_cloud(path, values[:, :3], normals, colors, sample=sample, rng=rng)

@@ -1,0 +1,109 @@
+"""The core's table reader (``_core.read_tables``): the numeric rows of PLY, PCD and XYZ data.
+
+The formats' readers parse and check their headers, describe the rows with :func:`spec` and read
+them here; several files (the scans of a ``.conf``) are read in parallel by one call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import _core
+
+#: The core's errors for rows that end early or are not what the header says.
+TruncatedData = _core.TruncatedData
+MalformedData = _core.MalformedData
+
+#: Core scalar type of each PLY type name.
+PLY_SCALARS = {
+    "char": "i8", "int8": "i8", "uchar": "u8", "uint8": "u8",
+    "short": "i16", "int16": "i16", "ushort": "u16", "uint16": "u16",
+    "int": "i32", "int32": "i32", "uint": "u32", "uint32": "u32",
+    "float": "f32", "float32": "f32", "double": "f64", "float64": "f64",
+}  # fmt: skip
+
+#: Core scalar type of each PCD (TYPE, SIZE).
+PCD_SCALARS = {
+    ("I", 1): "i8", ("U", 1): "u8", ("I", 2): "i16", ("U", 2): "u16",
+    ("I", 4): "i32", ("U", 4): "u32", ("F", 4): "f32", ("F", 8): "f64",
+}  # fmt: skip
+
+
+def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: int,
+         wanted: list[int], exact_columns: bool = True, commas: bool = False, affine=None):
+    """A ``_core.TableSpec``.
+
+    Parameters
+    ----------
+    path : Path
+    offset : int
+        First byte of the rows.
+    encoding : {"ascii", "binary_little_endian", "binary_big_endian"}
+    columns : list of str
+        Core scalar type names (``"f32"``, ``"u8"``, ...) of every column of a row, in order.
+    rows : int
+        Rows to read, or -1 (ASCII only) for every non-blank, non-comment line to the end.
+    wanted : list of int
+        Columns returned, in this order.
+    exact_columns, commas : bool
+        ASCII: rows must hold exactly ``len(columns)`` values (else at least); ``,`` and ``;``
+        separate values too.
+    affine : tuple of ((3, 3), (3,)) float, optional
+        ``(m, t)``: positions ``p`` (rows) are returned as ``p @ m + t``.
+    """
+    s = _core.TableSpec()
+    s.path = str(path)
+    s.offset = int(offset)
+    s.encoding = getattr(_core.Encoding, encoding)
+    s.columns = [getattr(_core.Scalar, c) for c in columns]
+    s.rows = int(rows)
+    s.wanted = [int(w) for w in wanted]
+    s.exact_columns = bool(exact_columns)
+    s.commas = bool(commas)
+    if affine is not None:
+        m, t = affine
+        s.transform = True
+        s.affine = [float(v) for v in np.asarray(m, dtype=np.float64).reshape(9)] + [
+            float(v) for v in np.asarray(t, dtype=np.float64).reshape(3)]
+    return s
+
+
+@dataclass
+class TableData:
+    """The rows read for one spec.
+
+    Attributes
+    ----------
+    values : (rows, len(wanted)) float64
+    lines_after : int
+        ASCII with a row count: the lines after the rows (the file's other elements).
+    lo, hi, mean : (3,) float64
+        Bounds and mean of the positions (the first three wanted columns) as read, before the
+        spec's affine map, over the rows whose three values are finite (``finite`` of them).
+    """
+
+    values: np.ndarray
+    lines_after: int
+    lo: np.ndarray
+    hi: np.ndarray
+    mean: np.ndarray
+    finite: int
+
+
+def read(specs: list, threads: int = 0) -> list[TableData]:
+    """Read every spec (in parallel when there are several).
+
+    Raises
+    ------
+    TruncatedData, MalformedData
+        The first failing spec's error (the caller names the file and the format).
+    """
+    out = []
+    for d in _core.read_tables(list(specs), threads):
+        n = int(d["finite"])
+        out.append(TableData(d["values"], int(d["lines_after"]), np.array(d["lo"]),
+                             np.array(d["hi"]), np.array(d["sum"]) / max(n, 1), n))
+    return out

@@ -1,0 +1,44 @@
+"""Smoke test of benchmarks/bench_pipeline.py: its generated scans are what it says they are
+(loaded through the .conf reader, they lie on the unit sphere within the stated noise), and a
+quick run of the per-frame and loader parts completes and prints its tables."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+sys.path.insert(0, str(BENCHMARKS))
+
+import bench_pipeline as bp
+
+
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "ascii"])
+def test_generated_scans_lie_on_the_sphere_and_face_their_scanners(tmp_path, fmt):
+    from pointviz.io import load
+
+    scans = bp.sphere_scans(seed=1, grid=40)
+    conf = bp.write_conf(tmp_path, scans, fmt)
+    cloud = load(conf, estimate=False)
+    assert len(cloud) == sum(len(s[0]) for s in scans)
+    r = np.linalg.norm(cloud.points, axis=1)
+    # depth noise (sigma 2 * SCAN_NOISE) plus misregistration (sigma SCAN_MISREGISTRATION per axis)
+    sigma = np.hypot(2 * bp.SCAN_NOISE, np.sqrt(3) * bp.SCAN_MISREGISTRATION)
+    assert np.abs(r - 1.0).max() < 6 * sigma  # a wrong placement convention is off by O(1)
+    # each scan's viewpoint (the reader puts it on +z of the scan's frame) is on its scanner's side
+    for k in range(len(scans)):
+        pts = cloud.points[cloud.scan_index == k]
+        view = cloud.viewpoints[cloud.scan_index == k][0]
+        assert np.dot(view, pts.mean(axis=0)) > 0
+
+
+@pytest.mark.slow
+def test_quick_run_prints_frame_and_loader_tables(capsys):
+    assert bp.main(["--quick", "--only", "frame", "--only", "loaders"]) == 0
+    out = capsys.readouterr().out
+    assert "render(surfel_scene)" in out and "Loaders:" in out
+    for name in ("binary.ply", "ascii.ply", "binary.pcd", "ascii.pcd", "points.xyz", "points.laz"):
+        assert name in out
