@@ -71,6 +71,7 @@ class SceneSpec:
     up: tuple
     ambient: float
     sky: dict
+    look: object = None
     _built: object = field(default=None, repr=False, compare=False)
     _lock: object = field(default=None, repr=False, compare=False)
 
@@ -116,7 +117,8 @@ class SceneSpec:
                       ground="none" if self.ground is None else self.ground,
                       background="sky" if self.background is None else self.background,
                       materials=[o.material for o in self.objects], up=self.up,
-                      ambient=self.ambient, sky=self.sky or None)
+                      ambient=self.ambient, sky=self.sky or None,
+                      look="auto" if self.look is None else self.look)
         for i in range(len(geoms)):
             if self.objects[i].surfel_kwargs is not None:
                 scene.surfel_scene(i)  # build now, so the first frame's time is the render's
@@ -189,11 +191,11 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
             objects.append(_ObjectSpec(g, obj.material, None))
         h.update(repr(obj.material).encode())
     rest = (scene.lights, scene.ground, scene.background, tuple(float(v) for v in scene.up),
-            scene.ambient, sorted(scene.sky.items()))
+            scene.ambient, sorted(scene.sky.items()), scene.look)
     h.update(repr(rest).encode())
     return SceneSpec(h.hexdigest(), core_identity(), objects, scene.lights, scene.ground, scene.background,
                      tuple(float(v) for v in scene.up), float(scene.ambient), dict(scene.sky),
-                     _built=scene)
+                     scene.look, _built=scene)
 
 
 def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -> tuple[bytes, dict]:

@@ -112,3 +112,44 @@ def _save_exr(p: Path, color: np.ndarray, overwrite: bool) -> Path:
         with OpenEXR.File(header, {"RGB": rgb}) as f:
             f.write(tmp)
     return p
+
+
+#: Automatic exposure: the mean luminance of the lit objects' pixels is brought to this linear
+#: value before tone mapping (ACES maps it to about 0.63 in sRGB: a white statue keeps its
+#: highlights, a dark terrain is not black).
+EXPOSURE_KEY = 0.24
+#: Bounds of the automatic exposure (a frame of black or blinding objects stays a frame of them).
+EXPOSURE_RANGE = (1 / 8, 8.0)
+#: Pixels whose samples hit objects at least this often count as the objects' pixels.
+EXPOSURE_COVERAGE = 0.5
+
+
+def auto_exposure(color: np.ndarray, object_alpha: np.ndarray | None = None) -> float:
+    """Exposure that keys the objects' mean luminance to EXPOSURE_KEY.
+
+    Parameters
+    ----------
+    color : (h, w, 3) float
+        Linear radiance.
+    object_alpha : (h, w) float, optional
+        Fraction of each pixel's samples that hit an object; the whole frame when None or when
+        no pixel reaches EXPOSURE_COVERAGE.
+
+    Returns
+    -------
+    float
+        In EXPOSURE_RANGE; 1 for an all-black frame.
+    """
+    # elementwise, not a matrix product: BLAS may sum in a thread-dependent order, and the
+    # exposure must be the same in every process (distributed frames are byte-identical)
+    c = np.asarray(color, dtype=np.float64)
+    lum = 0.2126 * c[..., 0] + 0.7152 * c[..., 1] + 0.0722 * c[..., 2]
+    if object_alpha is not None:
+        mask = np.asarray(object_alpha) >= EXPOSURE_COVERAGE
+        if mask.any():
+            lum = lum[mask]
+    lum = lum[np.isfinite(lum)]
+    mean = float(lum.mean()) if lum.size else 0.0
+    if not mean > 0:
+        return 1.0
+    return float(np.clip(EXPOSURE_KEY / mean, *EXPOSURE_RANGE))

@@ -28,6 +28,16 @@ class Frame:
         Fraction of the pixel's samples that hit geometry (coverage).
     stats : dict
         ``seconds``, ray counts, ``rays_per_second`` and the settings used.
+    albedo : (h, w, 3) float32
+        Base colour seen by the samples in [0, 1] (first hit, followed through mirrors; the
+        background on misses): the denoiser's guide.
+    object_alpha : (h, w) float32
+        Fraction of the samples that hit an object (not the ground).
+    exposure : float
+        Exposure that :meth:`save` and :meth:`to_srgb8` apply by default (the look's
+        automatic exposure, else 1).
+    noisy_color : (h, w, 3) float32 or None
+        The tracer's colour before denoising (None when the frame was not denoised).
     """
 
     color: np.ndarray
@@ -36,6 +46,10 @@ class Frame:
     alpha: np.ndarray
     stats: dict = field(default_factory=dict)
     camera: object = None
+    albedo: np.ndarray | None = None
+    object_alpha: np.ndarray | None = None
+    exposure: float = 1.0
+    noisy_color: np.ndarray | None = None
 
     @property
     def width(self) -> int:
@@ -45,22 +59,24 @@ class Frame:
     def height(self) -> int:
         return int(self.color.shape[0])
 
-    def to_srgb8(self, exposure: float = 1.0, tonemap: str = "aces") -> np.ndarray:
-        """(h, w, 3) uint8 display image."""
+    def to_srgb8(self, exposure: float | None = None, tonemap: str = "aces") -> np.ndarray:
+        """(h, w, 3) uint8 display image (``exposure`` None: the frame's own)."""
         from .images import to_srgb8
 
-        return to_srgb8(self.color, exposure, tonemap)
+        return to_srgb8(self.color, self.exposure if exposure is None else exposure, tonemap)
 
-    def save(self, path, *, bits: int = 8, exposure: float = 1.0, tonemap: str = "aces",
+    def save(self, path, *, bits: int = 8, exposure: float | None = None, tonemap: str = "aces",
              alpha: bool = False, overwrite: bool = False) -> Path:
         """Write the frame: ``.png`` (sRGB, 8 or 16 bits, optional alpha) or ``.exr`` (linear).
 
-        The file appears atomically; an existing file is kept unless ``overwrite=True``.
+        ``exposure`` None applies the frame's own (:attr:`exposure`). The file appears
+        atomically; an existing file is kept unless ``overwrite=True``.
         """
         from .images import save_image
 
         return save_image(path, self.color, alpha=self.alpha if alpha else None, bits=bits,
-                          exposure=exposure, tonemap_mode=tonemap, overwrite=overwrite)
+                          exposure=self.exposure if exposure is None else exposure,
+                          tonemap_mode=tonemap, overwrite=overwrite)
 
 
 def as_scene(scene_or_cloud, **scene_kw):
@@ -97,7 +113,7 @@ def _check_int(value, name, lo, hi):
 
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None) -> Frame:
+           cancel=None, ground=None, look=None, denoise: bool | str = False) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -123,6 +139,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         Set (or returning True) to stop the render; :class:`CancelledError` is raised.
     ground : str or Material, optional
         Overrides the scene's ground (for a PointCloud input).
+    look : {"auto", "studio", "outdoor", "flat"} or Look, optional
+        Lights, sky occlusion, backdrop and exposure (see :class:`pointviz.scene.Scene`);
+        default: the scene's, "auto" for a PointCloud.
+    denoise : bool or {"high", "balanced", "fast"}
+        Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
+        buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
+        "high" quality. The tracer's colour stays in ``frame.noisy_color``.
 
     Returns
     -------
@@ -132,10 +155,20 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
 
     if camera is None or not hasattr(camera, "pixel_angle"):
         raise InputError("camera: expected a pointviz.Camera")
+    from .denoise import check_available, denoise_quality
+
+    quality = denoise_quality(denoise)
+    if quality is not None:
+        check_available()  # before the expensive part
     kw = {} if ground is None else {"ground": ground}
+    if look is not None:
+        kw["look"] = look
     scene = as_scene(scene_or_cloud, **kw)
-    if ground is not None and isinstance(scene_or_cloud, Scene):
-        scene = scene.with_ground(ground)
+    if isinstance(scene_or_cloud, Scene):
+        if look is not None:
+            scene = scene.with_look(look)
+        if ground is not None:
+            scene = scene.with_ground(ground)
     spp = _check_int(spp, "spp", 1, 4096)
     reflections = _check_int(reflections, "reflections", 0, 16)
     seed = _check_int(seed, "seed", 0, 2**63 - 1)
@@ -172,10 +205,21 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
-                         "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads}
+                         "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads,
+                         "look": scene.look.name, "denoise": quality or False}
+    frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
+                  albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])
+    if quality is not None:
+        from .denoise import denoise_frame
+
+        denoise_frame(frame, quality)
+    if scene.look.auto_exposure:
+        from .images import auto_exposure
+
+        frame.exposure = auto_exposure(frame.color, frame.object_alpha)
     if progress is not None:
         progress(stats["tiles_total"], stats["tiles_total"])
-    return Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera)
+    return frame
 
 
 def _cancel_check(cancel):

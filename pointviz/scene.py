@@ -111,7 +111,7 @@ class Material:
 
 #: Ground presets by name (the CLI's ``--ground``).
 GROUND_MATERIALS = {
-    "matte": Material(color=(0.6, 0.6, 0.58), specular=0.02, use_point_colors=False),
+    "matte": Material(color=(0.35, 0.35, 0.34), specular=0.02, use_point_colors=False),
     "mirror": Material(color=(0.6, 0.6, 0.62), specular=0.0, mirror=0.6, use_point_colors=False),
     "glossy": Material(color=(0.7, 0.7, 0.7), specular=0.2, mirror=0.3, roughness=0.05,
                        use_point_colors=False),
@@ -127,9 +127,11 @@ class DirectionalLight:
     color: tuple = (1.0, 1.0, 1.0)
     intensity: float = 1.0
     angle_deg: float = 2.0
+    shadows: bool = True
 
     def to_core(self) -> _core.Light:
         light = _core.Light()
+        light.cast_shadows = bool(self.shadows)
         light.type = _core.LightType.directional
         light.direction = tuple(_unit(self.direction, "light.direction"))
         light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
@@ -178,11 +180,116 @@ class AreaLight:
         return light
 
 
+@dataclass(frozen=True)
+class Look:
+    """A named lighting set-up: what makes a mostly one-colour scan readable is light.
+
+    Lights are placed relative to the camera at render time (so every view is lit from the
+    front-left), lengths relative to the scene's bounding radius.
+
+    Parameters
+    ----------
+    name : str
+    ambient : float
+        Strength of the sky's ambient light.
+    occlusion : float
+        Length of the sky-visibility (ambient occlusion) rays, in bounding radii; 0: none.
+    key, key_angle_deg, key_elevation : float
+        Intensity, angular radius (soft shadows) and height (the up component of its direction,
+        before normalisation) of the key light over the camera's left shoulder; 0: no key.
+    fill : float
+        Intensity of a shadowless fill light from the camera's right; 0: none.
+    sky : dict or None
+        Sky colours (see :class:`Scene`); None: the default blue-grey gradient.
+    background : (3,) float or None
+        What primary rays that miss show; None: the sky (or the backdrop's colour).
+    backdrop : bool
+        The ground fades into a plain background beyond BACKDROP_FADE bounding radii (a studio
+        cyclorama: no horizon line), the background matching the lit ground.
+    ground : str
+        The ground this look uses when the scene's ground is "auto".
+    auto_exposure : bool
+        Expose the frame from the lit objects' mean luminance (see
+        :func:`pointviz.images.auto_exposure`); else exposure 1.
+    """
+
+    name: str
+    ambient: float
+    occlusion: float
+    key: float
+    key_angle_deg: float
+    key_elevation: float
+    fill: float
+    sky: dict | None
+    background: tuple | None
+    backdrop: bool
+    ground: str
+    auto_exposure: bool
+
+    def lights(self, camera, up) -> list:
+        """The look's lights for a camera (directions relative to the view)."""
+        up = np.asarray(up, dtype=np.float64)
+        fwd, right = np.asarray(camera.forward), np.asarray(camera.right)
+        out = []
+        if self.key > 0:
+            direction = self.key_elevation * up - 0.4 * fwd - 0.7 * right
+            out.append(DirectionalLight(direction=tuple(direction), intensity=self.key,
+                                        angle_deg=self.key_angle_deg))
+        if self.fill > 0:
+            direction = 0.3 * up - 0.6 * fwd + 0.7 * right
+            out.append(DirectionalLight(direction=tuple(direction), intensity=self.fill,
+                                        angle_deg=0.0, shadows=False))
+        return out
+
+
+#: Named looks (the CLI's ``--look``). Objects default to "studio", terrain tiles to "outdoor".
+LOOKS = {
+    # a soft key of 12 degrees' angular size, a fill, strong sky light shaped by occlusion,
+    # on a plain backdrop
+    "studio": Look("studio", ambient=0.3, occlusion=0.2, key=1.4, key_angle_deg=6.0,
+                   key_elevation=0.9, fill=0.2, background=None,
+                   sky={"zenith": (0.95, 0.96, 1.0), "horizon": (0.9, 0.9, 0.9),
+                        "below": (0.3, 0.29, 0.28)},
+                   backdrop=True, ground="matte", auto_exposure=True),
+    # a low sun and a blue sky: relief reads from shading and cast shadows
+    "outdoor": Look("outdoor", ambient=0.8, occlusion=0.04, key=1.3, key_angle_deg=0.5,
+                    key_elevation=0.8, fill=0.0, sky=None, background=(0.8, 0.82, 0.85),
+                    backdrop=False, ground="none",
+                    auto_exposure=True),
+    # colours as scanned: even white light, no shadows
+    "flat": Look("flat", ambient=1.0, occlusion=0.0, key=0.0, key_angle_deg=0.0,
+                 key_elevation=1.0, fill=0.0, background=(0.9, 0.9, 0.9),
+                 sky={"zenith": (1.0, 1.0, 1.0), "horizon": (1.0, 1.0, 1.0),
+                      "below": (1.0, 1.0, 1.0)},
+                 backdrop=False, ground="none", auto_exposure=False),
+}
+#: Comparisons (surfels against meshes) render every backend with one fixed exposure: an
+#: exposure keyed per frame would differ between methods and enter their image errors.
+COMPARE_LOOK = replace(LOOKS["studio"], auto_exposure=False)
+#: Where a backdrop's ground starts fading into the background (bounding radii from the centre);
+#: it reaches the background at twice this.
+BACKDROP_FADE = 1.5
+
+
 def default_lights(camera, up) -> list:
-    """A soft key light over the camera's left shoulder; the sky adds the fill."""
-    up = np.asarray(up, dtype=np.float64)
-    direction = 1.0 * up - 0.55 * np.asarray(camera.forward) - 0.45 * np.asarray(camera.right)
-    return [DirectionalLight(direction=tuple(direction), intensity=1.0, angle_deg=3.0)]
+    """The studio look's lights: a soft key over the camera's left shoulder and a fill."""
+    return LOOKS["studio"].lights(camera, up)
+
+
+def resolve_look(look, geometry, up) -> Look:
+    """The :class:`Look` named by ``look``; "auto" decides from the geometry's shape."""
+    if isinstance(look, Look):
+        return look
+    if look == "auto":
+        from .camera import shape_kind
+
+        cloud = getattr(geometry, "cloud", geometry)
+        pts = getattr(cloud, "points", None)
+        kind = shape_kind(pts, up) if pts is not None else "object"
+        return LOOKS["outdoor" if kind == "terrain" else "studio"]
+    if look not in LOOKS:
+        raise InputError(f"look: expected one of auto, {', '.join(LOOKS)}, got {look!r}")
+    return LOOKS[look]
 
 
 def cloud_extent(points, radii, up) -> tuple[np.ndarray, np.ndarray, float]:
@@ -235,18 +342,22 @@ class Scene:
     lights : list of DirectionalLight/PointLight/AreaLight, optional
         Default: a soft key light placed relative to the camera at render time.
     ground : {"auto", "matte", "mirror", "glossy", "none"} or Material or None
-        A plane under the clouds ("auto" is matte).
+        A plane under the clouds ("auto": the look's, matte for studio, none outdoors).
     background : "sky" or (3,) float
         What primary rays that miss show.
     materials : Material or list of Material, optional
         One per cloud.
     up : (3,) float, optional
         Default: the first cloud's ``up`` hint, else +Y.
-    ambient : float
-        Strength of the sky's ambient light.
+    ambient : float, optional
+        Strength of the sky's ambient light (default: the look's).
     sky : (3,) float or dict, optional
         One colour for the whole sky, or ``{"zenith": rgb, "horizon": rgb, "below": rgb}``;
-        default a soft blue-grey gradient.
+        default the look's.
+    look : {"auto", "studio", "outdoor", "flat"} or Look
+        Lights, sky light and occlusion, backdrop and exposure together (see :data:`LOOKS`);
+        "auto" picks "outdoor" for a terrain tile and "studio" for an object
+        (:func:`pointviz.camera.shape_kind` of the first cloud).
     two_sided : bool
         Show surfels from both sides: the SurfelScenes built here skip the paper's normal-cone
         culling (``cull=False``), which hides open scans (terrain, one-sided scans) seen from
@@ -257,8 +368,8 @@ class Scene:
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
-                 up=None, ambient: float = 0.25, sky=None, two_sided: bool = True,
-                 **scene_options):
+                 up=None, ambient: float | None = None, sky=None, two_sided: bool = True,
+                 look="auto", **scene_options):
         from .surfels import SurfelScene
 
         if not isinstance(clouds, (list, tuple)):
@@ -286,9 +397,10 @@ class Scene:
                 raise InputError(f"clouds: cannot render a {type(c).__name__}")
             self.objects.append(SceneObject(c, m))
         self.lights = None if lights is None else list(lights)
+        self.look = resolve_look(look, self.objects[0].geometry, self.up)
         if isinstance(ground, str):
             if ground == "auto":
-                ground = "matte"
+                ground = self.look.ground
             if ground == "none":
                 ground = None
             elif ground in GROUND_MATERIALS:
@@ -305,9 +417,10 @@ class Scene:
             self.background = None
         else:
             self.background = _rgb(background, "background")
-        self.ambient = _in_range(ambient, "ambient", 0.0, 10.0)
+        self.ambient = _in_range(self.look.ambient if ambient is None else ambient, "ambient",
+                                 0.0, 10.0)
         if sky is None:
-            self.sky = {}
+            self.sky = dict(self.look.sky or {})
         elif isinstance(sky, dict):
             unknown = set(sky) - {"zenith", "horizon", "below"}
             if unknown:
@@ -391,7 +504,7 @@ class Scene:
             rs.add_surfels(ss.tree, ss.trace_options(lod_pixels), offset, obj.material.to_core())
         if self.ground is not None:
             rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
-        lights = self.lights if self.lights is not None else default_lights(camera, self.up)
+        lights = self.lights if self.lights is not None else self.look.lights(camera, self.up)
         for light in lights:
             if isinstance(light, DirectionalLight):
                 rs.add_light(light.to_core())
@@ -404,18 +517,47 @@ class Scene:
             setattr(sky, key, value)
         sky.up = tuple(self.up)
         sky.ambient = self.ambient
-        if self.background is not None:
+        sky.occlusion_distance = float(self.look.occlusion * rs.scale)
+        background = self.background if self.background is not None else self.look.background
+        if background is not None:
             sky.background_is_sky = False
-            sky.background = self.background
+            sky.background = background
+        if self.look.backdrop and self.ground is not None:
+            sky.ground_fade = float(BACKDROP_FADE * rs.scale)
+            if background is None:
+                sky.background_is_sky = False
+                sky.background = self._lit_ground(sky, lights)
         rs.sky = sky
         return rs, origin
+
+    def _lit_ground(self, sky, lights) -> tuple:
+        """Radiance of the unshadowed ground under the sky and the directional lights: the
+        backdrop's background, so that the faded ground meets it without a seam."""
+        top = 0.5 * (np.asarray(sky.zenith) + np.asarray(sky.horizon)) * self.ambient
+        e = top.copy()
+        for light in lights:
+            if isinstance(light, DirectionalLight):
+                cos = float(_unit(light.direction, "light.direction") @ self.up)
+                e += np.asarray(light.color) * light.intensity * max(cos, 0.0)
+        return tuple(float(v) for v in np.asarray(self.ground.color) * e * self.ground.diffuse)
+
+    def with_look(self, look) -> Scene:
+        """A shallow copy with another look (objects and their trees are shared): its lights
+        (unless the scene has its own), sky light, occlusion, backdrop and exposure. The ground
+        stays the scene's."""
+        s = Scene.__new__(Scene)
+        s.__dict__.update(self.__dict__)
+        s.look = resolve_look(look, self.objects[0].geometry, self.up)
+        s.ambient = s.look.ambient
+        s.sky = dict(s.look.sky or {})
+        return s
 
     def with_ground(self, ground) -> Scene:
         """A shallow copy with another ground (objects and their trees are shared)."""
         s = Scene.__new__(Scene)
         s.__dict__.update(self.__dict__)
         s.objects = [replace(o) for o in self.objects]
-        tmp = Scene([o.geometry for o in self.objects[:1]], ground=ground, up=self.up)
+        tmp = Scene([o.geometry for o in self.objects[:1]], ground=ground, up=self.up, look=self.look)
         s.ground = tmp.ground
         return s
 

@@ -164,7 +164,9 @@ def test_fit_frames_cloud_and_sphere_touches_margin(rng, width, height):
     pts = rng.normal(size=(2000, 3)) * [5.0, 1.0, 2.0] + [100.0, -20.0, 3.0]
     cloud = SimpleNamespace(points=pts)
     margin = 1.1
-    cam = Camera.fit(cloud, fov_deg=35.0, width=width, height=height, margin=margin, outliers=0.0)
+    # an explicit direction frames the bounding sphere
+    cam = Camera.fit(cloud, direction=(0.0, -0.3, -1.0), fov_deg=35.0, width=width,
+                     height=height, margin=margin, outliers=0.0)
     centre, radius = bounding_sphere(pts)
     np.testing.assert_allclose(cam.target, centre)
     pixels, depth = cam.project(pts)
@@ -374,3 +376,62 @@ def test_open3d_unrepresentable(o3d, camera):
     params.intrinsic = o3d.camera.PinholeCameraIntrinsic(33, 21, 30.0, 30.0, 10.0, 10.0)
     with pytest.raises(InputError, match="principal point"):
         Camera.from_open3d(params)
+
+
+# ------------------------------------------------------------------------ automatic views
+
+
+def _coverage(cloud, cam):
+    """Fraction of the frame's primary rays that hit the cloud, and the fractions of columns
+    and rows they span (ray casting through the surfel tree, the renderer's own query)."""
+    import pointviz
+
+    hit = np.isfinite(pointviz.SurfelScene(cloud, cull=False).cast_rays(cam.rays())["t_hit"])
+    hit = hit.reshape(cam.height, cam.width)
+    return hit.mean(), hit.any(axis=0).mean(), hit.any(axis=1).mean()
+
+
+def test_fit_views_a_terrain_tile_from_above_and_fills_the_frame(rng):
+    import pointviz
+    from pointviz.camera import TERRAIN_ELEVATIONS_DEG, shape_kind
+
+    # a 300 x 120 m tile, z up, with hills and a few stray points far above and below
+    xy = rng.uniform([0, 0], [300, 120], (60000, 2)) + [5e5, 4e6]
+    z = 8 * np.sin(xy[:, 0] / 40) * np.cos(xy[:, 1] / 30) + 100
+    pts = np.column_stack([xy, z])
+    pts[:20, 2] += rng.choice([-400, 400], 20)
+    cloud = pointviz.PointCloud(pts, up=(0, 0, 1))
+    assert shape_kind(pts, (0, 0, 1)) == "terrain"
+    cam = Camera.fit(cloud, width=160, height=120)
+    elevation = np.degrees(np.arcsin(-cam.forward @ [0, 0, 1]))
+    assert min(TERRAIN_ELEVATIONS_DEG) - 1e-6 <= elevation <= max(TERRAIN_ELEVATIONS_DEG) + 1e-6
+    cover, width_span, height_span = _coverage(cloud, cam)
+    assert cover >= 0.35 and max(width_span, height_span) >= 0.8
+    old = Camera.fit(cloud, direction=(0.0, -0.3, -1.0), width=160, height=120)
+    assert _coverage(cloud, old)[0] < cover
+
+
+def test_fit_views_an_object_from_three_quarters_and_fills_the_frame(rng):
+    from pointviz.camera import OBJECT_AZIMUTH_DEG, OBJECT_ELEVATION_DEG, shape_kind
+    from pointviz.shapes import torus
+
+    cloud = torus(30000, 1.0, 0.35)  # y up
+    assert shape_kind(cloud.points, (0, 1, 0)) == "object"
+    margin = 1.05
+    cam = Camera.fit(cloud, width=160, height=120, margin=margin, outliers=0.0)
+    elevation = np.degrees(np.arcsin(-cam.forward @ [0, 1, 0]))
+    assert elevation == pytest.approx(OBJECT_ELEVATION_DEG, abs=1e-6)
+    # the horizontal view is OBJECT_AZIMUTH_DEG off one of the principal horizontal axes
+    h = cam.forward - np.array([0, 1, 0]) * cam.forward[1]
+    h /= np.linalg.norm(h)
+    from pointviz.camera import _horizontal_axes
+
+    _, major, minor = _horizontal_axes(cloud.points, np.array([0.0, 1.0, 0.0]))
+    assert np.degrees(np.arccos(abs(h @ minor))) == pytest.approx(OBJECT_AZIMUTH_DEG, abs=1e-6)
+    # every point inside, and the projection fills the width or the height (shrunk by margin)
+    px, depth = cam.project(cloud.points)
+    assert np.all(depth > 0) and np.all((px >= 0) & (px <= [160, 120]))
+    span = np.ptp(px, axis=0) / [160, 120]
+    assert span.max() == pytest.approx(1 / margin, rel=1e-3)
+    centre = (px.min(axis=0) + px.max(axis=0)) / 2
+    np.testing.assert_allclose(centre, [80, 60], atol=0.5)

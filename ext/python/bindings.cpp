@@ -296,17 +296,19 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
     d["tiles_total"] = st.tiles_total;
     if (!d["completed"].equal(nb::bool_(true))) return nb::make_tuple(nb::none(), d);
     size_t h = size_t(cam.height), w = size_t(cam.width);
-    float *c, *dep, *nn, *al;
-    auto ac = new_array<float>({h, w, 3}, &c);
-    auto ad = new_array<float>({h, w}, &dep);
-    auto an = new_array<float>({h, w, 3}, &nn);
-    auto aa = new_array<float>({h, w}, &al);
-    std::copy(fb->color.begin(), fb->color.end(), c);
-    std::copy(fb->depth.begin(), fb->depth.end(), dep);
-    std::copy(fb->normal.begin(), fb->normal.end(), nn);
-    std::copy(fb->alpha.begin(), fb->alpha.end(), al);
     nb::dict bufs;
-    bufs["color"] = ac; bufs["depth"] = ad; bufs["normal"] = an; bufs["alpha"] = aa;
+    auto put = [&](const char *name, const std::vector<float> &src, size_t channels) {
+        float *dst;
+        auto arr = channels > 1 ? new_array<float>({h, w, channels}, &dst) : new_array<float>({h, w}, &dst);
+        std::copy(src.begin(), src.end(), dst);
+        bufs[name] = arr;
+    };
+    put("color", fb->color, 3);
+    put("depth", fb->depth, 1);
+    put("normal", fb->normal, 3);
+    put("alpha", fb->alpha, 1);
+    put("albedo", fb->albedo, 3);
+    put("object_alpha", fb->object_alpha, 1);
     return nb::make_tuple(bufs, d);
 }
 
@@ -455,7 +457,8 @@ NB_MODULE(_core, m) {
         .def_rw("position", &Light::position)
         .def_rw("radius", &Light::radius)
         .def_rw("edge_u", &Light::edge_u)
-        .def_rw("edge_v", &Light::edge_v);
+        .def_rw("edge_v", &Light::edge_v)
+        .def_rw("cast_shadows", &Light::cast_shadows);
 
     nb::class_<Sky>(m, "Sky")
         .def(nb::init<>())
@@ -465,7 +468,9 @@ NB_MODULE(_core, m) {
         .def_rw("up", &Sky::up)
         .def_rw("ambient", &Sky::ambient)
         .def_rw("background_is_sky", &Sky::background_is_sky)
-        .def_rw("background", &Sky::background);
+        .def_rw("background", &Sky::background)
+        .def_rw("occlusion_distance", &Sky::occlusion_distance)
+        .def_rw("ground_fade", &Sky::ground_fade);
 
     nb::class_<RenderSettings>(m, "RenderSettings")
         .def(nb::init<>())
@@ -476,6 +481,7 @@ NB_MODULE(_core, m) {
         .def_rw("seed", &RenderSettings::seed)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
+        .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)
         .def_prop_rw("normal_offset", [](const RenderSettings &s) { return s.offsets.normal_offset; },
                      [](RenderSettings &s, float v) { s.offsets.normal_offset = v; })
         .def_prop_rw("offset_tmin", [](const RenderSettings &s) { return s.offsets.tmin; },

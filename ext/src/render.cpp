@@ -32,8 +32,34 @@ inline float rand01(uint64_t seed, uint64_t pixel, uint32_t sample, uint32_t dim
     return float(z >> 40) * (1.f / 16777216.f);
 }
 
+/// Point j of the R2 sequence, shifted per pixel and dimension pair (Cranley–Patterson): the
+/// samples of one pixel stay stratified over the square whatever their number.
+inline void r2_point(uint64_t seed, uint64_t pixel, uint32_t j, uint32_t dim, float &u1, float &u2) {
+    float s1 = rand01(seed, pixel, 0, dim), s2 = rand01(seed, pixel, 0, dim + 1);
+    u1 = float(std::fmod(kR2a * double(j) + double(s1), 1.0));
+    u2 = float(std::fmod(kR2b * double(j) + double(s2), 1.0));
+}
+
+/// Random-number dimensions used by one bounce: lights take two each from kDimLights, the
+/// glossy lobe two at kDimGloss, sky-visibility rays two at kDimOcclusion.
+constexpr uint32_t kDimsPerBounce = 64, kDimLights = 2, kDimGloss = 46, kDimOcclusion = 48;
+/// Lights beyond this many share random dimensions with the glossy lobe (still unbiased).
+constexpr uint32_t kMaxStratifiedLights = (kDimGloss - kDimLights) / 2;
+
 inline float srgb_to_linear(float c) {
     return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+/// Cosine-weighted direction in the hemisphere around unit `n`.
+inline Vec3 sample_cosine(Vec3 n, float u1, float u2) {
+    float r = std::sqrt(u1), phi = 2.f * kPi * u2;
+    Vec3 t, b;
+    make_basis(n, t, b);
+    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.f, 1.f - u1)));
+}
+
+inline Vec3 clamp01(Vec3 c) {
+    return {std::clamp(c.x, 0.f, 1.f), std::clamp(c.y, 0.f, 1.f), std::clamp(c.z, 0.f, 1.f)};
 }
 
 /// Uniform direction in the cone of half-angle `angle` around unit `axis`.
@@ -53,13 +79,15 @@ struct PathRay {
     Vec3 weight;       ///< throughput, including 1/spp
     uint32_t pixel;    ///< index within the tile
     uint32_t sample;
+    bool albedo = true;   ///< still adds to the albedo guide (camera rays and sharp mirror paths)
 };
 
-/// A shadow ray and what it adds if it reaches the light.
+/// A shadow (or sky-visibility) ray and what it adds if nothing blocks it.
 struct ShadowRay {
     Ray ray;
     Vec3 add;
     uint32_t pixel;
+    bool ground_blocks;   ///< false for sky-visibility rays: the ground is part of the sky model
 };
 
 struct Nearest {
@@ -80,6 +108,8 @@ public:
         depth_sum_.assign(size_t(npix), 0.f);
         nsum_.assign(size_t(npix), Vec3{0, 0, 0});
         hits_.assign(size_t(npix), 0u);
+        object_hits_.assign(size_t(npix), 0u);
+        albedo_.assign(size_t(npix), Vec3{0, 0, 0});
         rays_.clear();
         const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
         for (int y = y0; y < y1; ++y)
@@ -119,6 +149,8 @@ public:
                 out.depth[gp] = h ? depth_sum_[lp] / float(h) : kInf;
                 Vec3 n = h ? normalize(nsum_[lp]) : Vec3{0, 0, 0};
                 for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = n[k];
+                for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo_[lp][k]);
+                out.object_alpha[gp] = float(object_hits_[lp]) / float(spp);
             }
     }
 
@@ -176,22 +208,38 @@ private:
         intersect(near);
         shadows_.clear();
         next_.clear();
+        const Sky &sky_model = scene_.sky;
         for (size_t i = 0; i < rays_.size(); ++i) {
             const PathRay &pr = rays_[i];
             const Nearest &nh = near[i];
             const Ray &r = pr.ray;
             if (nh.object == -1) {
-                Vec3 bg = (bounce == 0 && !scene_.sky.background_is_sky) ? scene_.sky.background : sky(r.d);
+                Vec3 bg = (bounce == 0 && !sky_model.background_is_sky) ? sky_model.background : sky(r.d);
                 color_[pr.pixel] += pr.weight * bg;
+                if (pr.albedo) albedo_[pr.pixel] += pr.weight * clamp01(bg);
                 continue;
             }
             const SurfaceHit &h = nh.hit;
             Vec3 p = r.o + r.d * h.t;
             Vec3 n = dot(h.n, r.d) > 0.f ? -h.n : h.n;
+            Vec3 weight = pr.weight;
             if (bounce == 0) {
                 depth_sum_[pr.pixel] += h.t;
                 nsum_[pr.pixel] += n;
                 hits_[pr.pixel] += 1;
+                if (nh.object >= 0) object_hits_[pr.pixel] += 1;
+                if (nh.object == -2 && sky_model.ground_fade > 0.f) {
+                    // studio backdrop: the far ground blends into the background
+                    Vec3 g = p - scene_.ground_point;
+                    float d = length(g - scene_.ground_normal * dot(g, scene_.ground_normal));
+                    float f = std::clamp(d / sky_model.ground_fade - 1.f, 0.f, 1.f);
+                    f = f * f * (3.f - 2.f * f);
+                    Vec3 bg = sky_model.background_is_sky ? sky(r.d) : sky_model.background;
+                    color_[pr.pixel] += weight * bg * f;
+                    albedo_[pr.pixel] += weight * clamp01(bg) * f;
+                    weight = weight * (1.f - f);
+                    if (f >= 1.f) continue;
+                }
             }
             const Material &m = nh.object == -2 ? scene_.ground_material
                                                 : scene_.objects[size_t(nh.object)].material;
@@ -207,16 +255,46 @@ private:
                 if ((cx + cy) & 1) albedo = m.checker;
             }
             const float keep = 1.f - m.mirror;
+            const bool reflects = m.mirror > 0.f && bounce < set_.reflections;
+            // The denoiser's albedo follows sharp mirror paths as the colour does, so that what
+            // a mirror shows stays sharp; a glossy lobe's samples would make it noisy, so a
+            // glossy surface stands for what it reflects with its own colour.
+            const bool follow = reflects && m.roughness == 0.f;
+            if (pr.albedo)
+                albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
             const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
             const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
-            const uint32_t dim0 = uint32_t(bounce) * 16u;
-            color_[pr.pixel] += pr.weight * albedo * ambient(n) * (keep * m.diffuse);
+            const uint32_t dim0 = uint32_t(bounce) * kDimsPerBounce;
+            const Vec3 ambient_add = weight * albedo * ambient(n) * (keep * m.diffuse);
+            const int n_occ = sky_model.occlusion_distance > 0.f && set_.occlusion_rays > 0
+                                  ? (bounce == 0 ? set_.occlusion_rays : 1) : 0;
+            if (n_occ == 0) {
+                color_[pr.pixel] += ambient_add;
+            } else {
+                for (int k = 0; k < n_occ; ++k) {
+                    float u1, u2;
+                    r2_point(set_.seed, gp, pr.sample * uint32_t(n_occ) + uint32_t(k),
+                             dim0 + kDimOcclusion, u1, u2);
+                    ShadowRay sr;
+                    sr.ray.o = origin;
+                    sr.ray.d = sample_cosine(n, u1, u2);
+                    sr.ray.tmin = tmin;
+                    sr.ray.tmax = std::max(tmin, sky_model.occlusion_distance);
+                    sr.ray.width0 = r.footprint(h.t);
+                    sr.ray.spread = 0.f;
+                    sr.add = ambient_add * (1.f / float(n_occ));
+                    sr.pixel = pr.pixel;
+                    sr.ground_blocks = false;
+                    shadows_.push_back(sr);
+                }
+            }
             for (size_t li = 0; li < scene_.lights.size(); ++li) {
                 const Light &L = scene_.lights[li];
-                float u1 = rand01(set_.seed, gp, pr.sample, dim0 + 2 + 2 * uint32_t(li));
-                float u2 = rand01(set_.seed, gp, pr.sample, dim0 + 3 + 2 * uint32_t(li));
+                float u1, u2;
+                uint32_t ld = uint32_t(std::min<size_t>(li, kMaxStratifiedLights));
+                r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
                 Vec3 ldir, radiance = L.color;
                 float dist = kInf;
                 if (L.type == LightType::Directional) {
@@ -242,8 +320,8 @@ private:
                 if (ndl <= 0.f) continue;
                 Vec3 hv = normalize(ldir - r.d);
                 float spec = m.specular * std::pow(std::max(0.f, dot(n, hv)), m.shininess);
-                Vec3 add = pr.weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
-                if (!set_.shadows) {
+                Vec3 add = weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
+                if (!set_.shadows || !L.cast_shadows) {
                     color_[pr.pixel] += add;
                     continue;
                 }
@@ -256,13 +334,14 @@ private:
                 sr.ray.spread = 0.f;
                 sr.add = add;
                 sr.pixel = pr.pixel;
+                sr.ground_blocks = true;
                 shadows_.push_back(sr);
             }
-            if (m.mirror > 0.f && bounce < set_.reflections) {
+            if (reflects) {
                 Vec3 rd = reflect(r.d, n);
                 if (m.roughness > 0.f) {
-                    float u1 = rand01(set_.seed, gp, pr.sample, dim0 + 14);
-                    float u2 = rand01(set_.seed, gp, pr.sample, dim0 + 15);
+                    float u1, u2;
+                    r2_point(set_.seed, gp, pr.sample, dim0 + kDimGloss, u1, u2);
                     Vec3 g = sample_cone(rd, std::min(m.roughness, 1.f) * 0.5f * kPi, u1, u2);
                     rd = dot(g, n) > 0.f ? g : rd;
                 }
@@ -272,9 +351,10 @@ private:
                 nr.ray.tmin = tmin;
                 nr.ray.width0 = r.footprint(h.t);
                 nr.ray.spread = r.spread + m.roughness;
-                nr.weight = pr.weight * m.mirror;
+                nr.weight = weight * m.mirror;
                 nr.pixel = pr.pixel;
                 nr.sample = pr.sample;
+                nr.albedo = pr.albedo && follow;
                 next_.push_back(nr);
             }
         }
@@ -303,7 +383,7 @@ private:
         }
         for (uint32_t i : live) {
             const ShadowRay &s = shadows_[i];
-            if (scene_.ground) {
+            if (scene_.ground && s.ground_blocks) {
                 float den = dot(s.ray.d, scene_.ground_normal);
                 if (std::fabs(den) >= kParallelCos) {
                     float t = dot(scene_.ground_point - s.ray.o, scene_.ground_normal) / den;
@@ -326,7 +406,8 @@ private:
     RenderStats &stats_;
     std::vector<Vec3> color_, nsum_;
     std::vector<float> depth_sum_;
-    std::vector<uint32_t> hits_;
+    std::vector<uint32_t> hits_, object_hits_;
+    std::vector<Vec3> albedo_;
     std::vector<PathRay> rays_, next_;
     std::vector<ShadowRay> shadows_;
     std::vector<Ray> batch_;
@@ -343,6 +424,8 @@ bool render(const RenderScene &scene, const CameraModel &camera, const RenderSet
     out.depth.assign(np, kInf);
     out.normal.assign(3 * np, 0.f);
     out.alpha.assign(np, 0.f);
+    out.albedo.assign(3 * np, 0.f);
+    out.object_alpha.assign(np, 0.f);
     bool thread_safe = true;
     for (const auto &o : scene.objects) thread_safe = thread_safe && o.geometry->thread_safe();
     // A callback backend gets bigger tiles: fewer, larger batches per call.

@@ -36,6 +36,13 @@ def add_render_options(p) -> None:
                    default="auto", help="ground plane under the cloud")
     g.add_argument("--interpolation", choices=["smooth", "paper", "none"], default=None,
                    help="how disks around a hit are blended")
+    g.add_argument("--look", choices=["auto", "studio", "outdoor", "flat"], default="auto",
+                   help="lighting: studio (key, fill, sky occlusion, backdrop), outdoor (sun and "
+                        "sky), flat (colours as scanned); auto: outdoor for terrain tiles, "
+                        "studio for objects")
+    g.add_argument("--no-denoise", action="store_true",
+                   help="keep the tracer's noisy frame (default: denoised with Open Image Denoise "
+                        "when the 'denoise' extra is installed)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--threads", type=int, default=None)
 
@@ -95,8 +102,10 @@ def make_scene_and_camera(args):
             scene.lights = lights
         if args.ground != "auto":
             scene = scene.with_ground(args.ground)
+        if args.look != "auto":
+            scene = scene.with_look(args.look)
     else:
-        scene = Scene([loaded], lights=lights, ground=args.ground, **kw)
+        scene = Scene([loaded], lights=lights, ground=args.ground, look=args.look, **kw)
     if args.camera:
         camera = Camera.from_json(args.camera)
     elif demo_camera is not None:
@@ -115,7 +124,24 @@ def make_scene_and_camera(args):
 
 def render_kwargs(args) -> dict:
     return {"shadows": not args.no_shadows, "reflections": args.reflections, "spp": args.spp,
-            "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads}
+            "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
+            "denoise": denoise_default(args)}
+
+
+def denoise_default(args) -> bool:
+    """Final frames are denoised unless --no-denoise; without the denoiser installed, a one-line
+    note says how to get it and the frame stays as traced."""
+    from ..denoise import check_available
+    from ..errors import MissingDependencyError
+
+    if getattr(args, "no_denoise", False):
+        return False
+    try:
+        check_available()
+    except MissingDependencyError as exc:
+        sys.stderr.write(f"note: frames are not denoised: {exc}\n")
+        return False
+    return True
 
 
 class ProgressBar:

@@ -11,7 +11,8 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="output image (.png or .exr)")
     add_render_options(p)
     p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth")
-    p.add_argument("--exposure", type=float, default=1.0)
+    p.add_argument("--exposure", type=float, default=None,
+                   help="exposure multiplier (default: the look's, automatic for studio/outdoor)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--progress", action="store_true", help="show progress even when not a terminal")
     p.set_defaults(run=run)

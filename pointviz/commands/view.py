@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 
-from .common import add_input_options, add_render_options, make_scene_and_camera
+from .common import add_input_options, add_render_options, denoise_default, make_scene_and_camera
 
 #: Leave the process without Python's teardown once the Open3D window has closed and every
 #: output is written: Open3D 0.20's GUI segfaults or hangs now and then while its static
@@ -46,6 +46,7 @@ def run(args) -> int:
     scene, camera = make_scene_and_camera(args)
     overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
                  "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
+                 "denoise": denoise_default(args),
                  "color_mode": args.color_by, "ground": None,  # the scene already has --ground
                  "width": args.width or 0, "height": args.height or 0,
                  "preview_max_points": args.preview_points or DEFAULT_PREVIEW_MAX_POINTS}

@@ -89,6 +89,7 @@ def speed_accuracy_chart(entries, path: Path, overwrite: bool) -> str:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8))
+    labels: dict[int, list] = {}
     for ax, key, title in ((axes[0], "flip", "FLIP error"),
                            (axes[1], "normal_error_deg", "normal error (degrees)")):
         pts = []
@@ -103,7 +104,7 @@ def speed_accuracy_chart(entries, path: Path, overwrite: bool) -> str:
             ax.plot(x, y, mk + "-", color=col, label=method, alpha=0.85, ms=7)
             for e, xi, yi in zip(es, x, y):
                 short = e["label"].replace(method, "").strip() or method
-                ax.annotate(short, (xi, yi), fontsize=7, xytext=(3, 3), textcoords="offset points")
+                labels.setdefault(id(ax), []).append((xi, yi, short))
             pts += list(zip(x, y))
         if pts:
             front = pareto(pts)
@@ -117,6 +118,8 @@ def speed_accuracy_chart(entries, path: Path, overwrite: bool) -> str:
         ax.set_title(f"speed vs {title}")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
+    for ax in axes:
+        place_labels(ax, labels.get(id(ax), []))
     import io
 
     buf = io.BytesIO()
@@ -124,6 +127,99 @@ def speed_accuracy_chart(entries, path: Path, overwrite: bool) -> str:
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue(), overwrite=overwrite)
     return path.name
+
+
+#: Candidate label positions around a point: offsets in points and the text's alignment.
+LABEL_OFFSETS = [(dx, dy, ha, va) for dist in (4, 12, 22)
+                 for dx, dy, ha, va in ((dist, dist, "left", "bottom"), (dist, -dist, "left", "top"),
+                                        (-dist, dist, "right", "bottom"),
+                                        (-dist, -dist, "right", "top"),
+                                        (0, dist + 2, "center", "bottom"),
+                                        (0, -dist - 2, "center", "top"))]
+#: Half size of the box kept clear around each marker, in display pixels.
+MARKER_CLEARANCE = 5.0
+LABEL_FONTSIZE = 7
+
+
+def place_labels(ax, items) -> list:
+    """Annotate ``items`` ((x, y, text) in data coordinates) so that no two labels overlap,
+    nor a label a marker: each label, in turn, takes the first of LABEL_OFFSETS whose box is
+    clear (else the least-overlapping one, with a leader line when it sits far away).
+
+    Returns
+    -------
+    list of matplotlib.transforms.Bbox
+        The labels' boxes in display coordinates.
+    """
+    fig = ax.figure
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    from matplotlib.transforms import Bbox
+
+    xy = ax.transData.transform([(x, y) for x, y, _ in items]) if items else np.zeros((0, 2))
+    c = MARKER_CLEARANCE
+    obstacles = [Bbox([[px - c, py - c], [px + c, py + c]]) for px, py in xy]
+    frame = ax.get_window_extent(renderer)
+    placed = []
+
+    def overlap(a, b):
+        w = min(a.x1, b.x1) - max(a.x0, b.x0)
+        h = min(a.y1, b.y1) - max(a.y0, b.y0)
+        return w * h if w > 0 and h > 0 else 0.0
+
+    for x, y, text in items:
+        best = None
+        for k, (dx, dy, ha, va) in enumerate(LABEL_OFFSETS):
+            ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points",
+                              fontsize=LABEL_FONTSIZE, ha=ha, va=va)
+            box = ann.get_window_extent(renderer)
+            cost = sum(overlap(box, o) for o in obstacles + placed)
+            cost += box.width * box.height - overlap(box, frame)  # outside the axes
+            if best is None or cost < best[0]:
+                if best is not None:
+                    best[1].remove()
+                best = (cost, ann, box, k)
+            else:
+                ann.remove()
+            if cost == 0:
+                break
+        _, ann, box, k = best
+        if LABEL_OFFSETS[k][0] ** 2 + LABEL_OFFSETS[k][1] ** 2 > 12 ** 2:
+            ann.remove()
+            dx, dy, ha, va = LABEL_OFFSETS[k]
+            ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points",
+                              fontsize=LABEL_FONTSIZE, ha=ha, va=va,
+                              arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "0.5"})
+        placed.append(box)
+    return placed
+
+
+def verdict(doc: dict) -> str:
+    """The report's one-line verdict: which geometry matches the reference best, and how the
+    best surfel entry compares with the best mesh in error and time to first image."""
+    entries = [e for e in doc["entries"] if e["metrics"].get("flip") is not None
+               and np.isfinite(e["metrics"]["flip"])]
+    if not entries:
+        return "No method produced a frame to compare."
+    surf = [e for e in entries if e["method"] in ("surfels-smooth", "surfels-paper", "discs")]
+    mesh = [e for e in entries if e not in surf]
+
+    def flip(e):
+        return e["metrics"]["flip"]
+
+    def desc(e):
+        return (f"{e['label']} (FLIP {flip(e):.4f}, first image in "
+                f"{e['times']['first_image']:.2f} s)")
+
+    best = min(entries, key=flip)
+    if not surf or not mesh:
+        return f"Closest to the reference: {desc(best)}."
+    s, m = min(surf, key=flip), min(mesh, key=flip)
+    closer = "closer to" if flip(s) < flip(m) else "further from"
+    speed = m["times"]["first_image"] / max(s["times"]["first_image"], 1e-9)
+    return (f"Surfels are {closer} the reference than the best mesh: {desc(s)} against "
+            f"{desc(m)}; surfels reach the first image {speed:.1f}x "
+            f"{'sooner' if speed >= 1 else 'later'}.")
 
 
 def _fmt(v, spec):
@@ -183,6 +279,8 @@ table{{border-collapse:collapse;font-size:13px}} td,th{{border:1px solid #ccc;pa
 td:first-child,td:nth-child(2){{text-align:left}} figure{{display:inline-block;margin:4px;width:330px;font-size:12px}}
 figure img{{width:160px}} .note{{background:#f4f4f4;padding:.5em 1em}}</style></head><body>
 <h1>Surfels vs meshes: {html.escape(doc['input'])}</h1>
+<p class="verdict"><b>{html.escape(verdict(doc))}</b></p>
+<img src="{side}" alt="side by side: {labels}"><p>{labels}</p>
 <p class="note">{doc['points']} points, {doc['image']['width']}×{doc['image']['height']} pixels,
 {doc['image']['spp']} samples per pixel. Reference: <b>{html.escape(ref['description'])}</b>.
 Every image is rendered by the same shading code (camera, lights, materials); only the geometry
@@ -190,7 +288,6 @@ backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BV
 (the whole render call); first image = their sum, each stage in metrics.json.{load}
 <a href="metrics.json">metrics.json</a> (schema: <a href="metrics.schema.json">metrics.schema.json</a>).</p>
 {caveat}
-<h2>Side by side</h2><p>{labels}</p><img src="{side}" alt="side by side: {labels}">
 <h2>Speed against accuracy</h2><img src="{chart}" alt="speed-accuracy chart">
 <h2>All methods and settings</h2>{entries_table(entries)}
 <h2>Frames and FLIP error maps</h2><p><img src="{writer.reference_png}" alt="reference" style="width:320px"><br>reference</p>{gallery}

@@ -119,9 +119,10 @@ def render_geometry(geometry, camera, settings: Settings, lod: float = 0.0, spp=
     be passed for every backend alike: a mesh has no hint, and the sky and the default light
     follow it."""
     from ..rendering import render
-    from ..scene import Scene
+    from ..scene import COMPARE_LOOK, Scene
 
-    scene = Scene([geometry], ground="none", up=up if up is not None else settings.up)
+    scene = Scene([geometry], ground="none", up=up if up is not None else settings.up,
+                  look=COMPARE_LOOK)
     return render(scene, camera, spp=spp or settings.spp, lod_pixels=lod, reflections=0,
                   seed=settings.seed, shadows=True)
 

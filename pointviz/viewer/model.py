@@ -31,6 +31,9 @@ PREVIEW_SUBSET_SEED = 0
 #: elevation above the horizon (a key light from above one side).
 DEFAULT_LIGHT_AZIMUTH_DEG = 135.0
 DEFAULT_LIGHT_ELEVATION_DEG = 50.0
+#: The look's fill light comes from the other side of the key, low: azimuth offset and height.
+FILL_AZIMUTH_OFFSET_DEG = 160.0
+FILL_ELEVATION_DEG = 20.0
 #: Largest preview point size in pixels (Open3D and VTK clamp huge points anyway).
 MAX_POINT_SIZE_PX = 64.0
 #: Smallest preview point size in pixels (1 px points leave holes; 2 px closes them).
@@ -72,6 +75,8 @@ class ViewerSettings:
     display : {"side", "overlay"}
     seed : int
     threads : int or None
+    denoise : bool
+        Denoise the ray-traced frame (Open Image Denoise, the ``denoise`` extra).
     """
 
     color_mode: str = "rgb"
@@ -90,6 +95,7 @@ class ViewerSettings:
     display: str = "side"
     seed: int = 0
     threads: int | None = None
+    denoise: bool = False
 
     def __post_init__(self) -> None:
         self.validate()
@@ -123,7 +129,7 @@ class ViewerSettings:
         """Keyword arguments of :func:`pointviz.render` for these settings."""
         return {"shadows": bool(self.shadows), "reflections": int(self.reflections),
                 "spp": int(self.spp), "lod_pixels": float(self.lod_pixels),
-                "seed": int(self.seed), "threads": self.threads}
+                "seed": int(self.seed), "threads": self.threads, "denoise": bool(self.denoise)}
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -201,7 +207,7 @@ def render_scene(scene, settings: ViewerSettings):
     for i in range(len(scene.objects)):  # build the trees once, on the shared objects
         scene.surfel_scene(i)
     out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
-    angle = 3.0
+    angle = scene.look.key_angle_deg
     for light in scene.lights or ():
         if isinstance(light, DirectionalLight):
             angle = light.angle_deg
@@ -209,6 +215,12 @@ def render_scene(scene, settings: ViewerSettings):
     direction = light_direction(settings.light_azimuth_deg, settings.light_elevation_deg, scene.up)
     out.lights = [DirectionalLight(direction=tuple(float(v) for v in direction),
                                    intensity=float(settings.light_intensity), angle_deg=angle)]
+    if scene.lights is None and scene.look.fill > 0:  # the look's shadowless fill, opposite
+        fill = light_direction(settings.light_azimuth_deg + FILL_AZIMUTH_OFFSET_DEG,
+                               FILL_ELEVATION_DEG, scene.up)
+        out.lights.append(DirectionalLight(direction=tuple(float(v) for v in fill),
+                                           intensity=scene.look.fill, angle_deg=0.0,
+                                           shadows=False))
     return out
 
 

@@ -820,8 +820,11 @@ def save_frame_npz(path, frame, camera, overwrite=False) -> None:
     from ..files import atomic_write_bytes
 
     buf = io.BytesIO()
+    extra = {k: getattr(frame, k) for k in ("albedo", "object_alpha", "noisy_color")
+             if getattr(frame, k, None) is not None}
     np.savez(buf, color=frame.color, depth=frame.depth, normal=frame.normal, alpha=frame.alpha,
-             camera=np.array(model.camera_json(camera)))
+             camera=np.array(model.camera_json(camera)), exposure=np.float64(frame.exposure),
+             **extra)
     atomic_write_bytes(path, buf.getvalue(), overwrite)
 
 

@@ -468,8 +468,14 @@ void test_render() {
     area.position = {-1, 3, 0};
     area.edge_u = {1, 0, 0};
     area.edge_v = {0, 0, 1};
-    scene.lights = {sun, pt, area};
+    Light fill;   // shadowless
+    fill.direction = normalize(Vec3{-1.f, 0.3f, 0.5f});
+    fill.cast_shadows = false;
+    scene.lights = {sun, pt, area, fill};
     scene.scale = 2.f;
+    scene.sky.occlusion_distance = 0.8f;   // sky-visibility rays
+    scene.sky.ground_fade = 3.f;           // studio backdrop
+    scene.sky.background_is_sky = false;
     CameraModel cam;
     cam.eye = {0, 0.5f, 5};
     cam.forward = normalize(Vec3{0, -0.1f, -1});
@@ -498,6 +504,11 @@ void test_render() {
     }
     for (float v : fb1.color) CHECK(std::isfinite(v) && v >= 0.f, "colour %g", v);
     for (float v : fb1.normal) CHECK(std::isfinite(v), "normal %g", v);
+    CHECK(fb1.albedo.size() == fb1.color.size() && fb1.albedo == fb2.albedo, "albedo buffer");
+    for (float v : fb1.albedo) CHECK(v >= 0.f && v <= 1.f, "albedo %g", v);
+    for (size_t i = 0; i < fb1.alpha.size(); ++i)
+        CHECK(fb1.object_alpha[i] >= 0.f && fb1.object_alpha[i] <= fb1.alpha[i], "object alpha %g of %g",
+              fb1.object_alpha[i], fb1.alpha[i]);
     CHECK(hit > fb1.alpha.size() / 4, "only %zu of %zu pixels hit", hit, fb1.alpha.size());
     CHECK(s1.tiles_done == s1.tiles_total, "tiles %llu of %llu", (unsigned long long)s1.tiles_done.load(),
           (unsigned long long)s1.tiles_total);
