@@ -46,11 +46,13 @@ sanitize: deps
 	$(SANITIZE_ENV) ./build/sanitize/core_tests
 	$(SANITIZE_ENV) ./build/sanitize/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize/reader_tests
+	$(SANITIZE_ENV) ./build/sanitize/preprocess_tests
 	cmake -S tests/cpp -B build/sanitize-portable -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_NATIVE=OFF >/dev/null
 	cmake --build build/sanitize-portable -j2
 	$(SANITIZE_ENV) ./build/sanitize-portable/core_tests
 	$(SANITIZE_ENV) ./build/sanitize-portable/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize-portable/reader_tests
+	$(SANITIZE_ENV) ./build/sanitize-portable/preprocess_tests
 
 bench: build
 	$(PY) benchmarks/bench_core.py

@@ -1,9 +1,10 @@
 """Point clouds as surfels: positions, normals, radii and optional colours.
 
 :class:`PointCloud` validates and owns the arrays the renderer consumes. Normals and radii that
-were not given are estimated lazily, on first access, from the ``k`` nearest neighbours of every
-point (scipy's ``cKDTree``); normals are then oriented consistently, toward the scanner when the
-viewpoints are known and by minimum-spanning-tree propagation otherwise.
+were not given are estimated lazily, on first access, by :mod:`pointviz.estimation` (the C++
+core): normals from a neighbourhood chosen per point, oriented toward the scanner when the
+viewpoints are known and by minimum-spanning-tree propagation otherwise; radii that cover the
+surface. :meth:`PointCloud.fitted` moves raw scans onto a fitted surface.
 
 Only numpy and scipy are needed here; Open3D and pyvista are imported inside the converters that
 use them.
@@ -17,47 +18,30 @@ import numpy as np
 
 from .arrays import bounds
 from .errors import InputError, require
-
-# Neighbours used for the PCA normal of a point. 16 averages out the ~0.1 mm noise of raw
-# triangulation scans (Stanford range scans) without rounding off features a few samples wide;
-# fewer neighbours make normals of raw scans visibly noisy, many more blur creases.
-NORMAL_K = 16
-
-# Neighbours linked in the graph that propagates normal orientation (Hoppe et al. 1992 use a
-# k-NN "Riemannian graph" with k ~ 8): enough to keep a sampled surface in one piece, few enough
-# that the graph rarely jumps across thin parts (ears, fingers) to the other side.
-ORIENT_K = 8
-
-# Weight of the neighbour distance (in units of the median spacing) added to the Hoppe edge cost
-# 1 - |n_i . n_j|. On flat parts that cost is ~0 for every edge, so without the distance term the
-# tree may pick a long edge through a thin part; with it, short edges win ties.
-ORIENT_DISTANCE_WEIGHT = 0.1
-
-# A component of the neighbour graph whose normals point outward (away from its centroid) for a
-# fraction in [0.5 - m, 0.5 + m] is "undecided" (typically an open, flat patch such as terrain);
-# if an ``up`` hint is known such a component is oriented to face up instead.
-OUTWARD_UNDECIDED_MARGIN = 0.1
-
-# The radius of a point comes from the distance to its RADIUS_K-th nearest neighbour (not counting
-# itself). The 8th neighbour reaches past the first ring of neighbours on a surface (6 on a
-# hexagonal sampling, 8 on a square grid), so one point's radius does not collapse when a single
-# neighbour happens to lie very close.
-RADIUS_K = 8
-
-# r_i = RADIUS_FACTOR * d_8(i). Measured with rays against a dense probe set (tests/test_cloud.py):
-# the smallest factor that leaves no hole is 0.49 on a Fibonacci sphere (d_8 ~ 1.6 x NN spacing
-# there), 0.53 on a grid jittered by +-0.25 spacing, 0.50 on an anisotropic 1:2 grid like a range
-# scan's and 0.64 for +-0.4 jitter. 0.65 covers all of these, with a margin of >= 1.2x on the first
-# three, while the mean radius stays 1.05x the mean nearest-neighbour spacing on the sphere and
-# 1.36x on the +-0.25 jittered grid (jitter shortens the nearest-neighbour distance).
-RADIUS_FACTOR = 0.65
+from .estimation import (  # noqa: F401 - re-exported: the estimation used to live here
+    COVER_CAP,
+    COVER_DIRECTIONS,
+    COVER_GLOBAL_CAP,
+    COVER_K,
+    COVER_MARGIN,
+    NORMAL_K,
+    ORIENT_DISTANCE_WEIGHT,
+    ORIENT_K,
+    OUTWARD_UNDECIDED_MARGIN,
+    RADIUS_FACTOR,
+    RADIUS_K,
+    SurfaceFit,
+    coverage_radii,
+    estimate_normals,
+    estimate_radii,
+    fit_surface,
+    knn,
+    orient_normals,
+)
 
 # Largest extent of a cloud: surfels are stored in float32 relative to the cloud's centre, and
 # squared distances (normal and radius estimation) must stay finite in float64.
 MAX_EXTENT = 1e30
-
-# Points per block when querying neighbours, to bound memory (~NORMAL_K * 3 * 8 bytes per point).
-_BLOCK = 65536
 
 
 # ---------------------------------------------------------------------------------------------
@@ -192,303 +176,6 @@ def _validate_per_point(name: str, value, n: int, dtype) -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=dtype)
 
 
-# ---------------------------------------------------------------------------------------------
-# estimation
-
-
-def _knn(points: np.ndarray, k: int, tree=None):
-    """Distances and indices of the ``k`` nearest neighbours of every point, itself excluded.
-
-    Returns
-    -------
-    dist : (n, k) float64
-    idx : (n, k) int64
-    """
-    from scipy.spatial import cKDTree
-
-    if tree is None:
-        tree = cKDTree(points)
-    dist, idx = tree.query(points, k=k + 1, workers=-1)
-    # a point is its own nearest neighbour except among exact duplicates, where any duplicate
-    # may come first; dropping column 0 drops a zero distance either way
-    return dist[:, 1:], idx[:, 1:]
-
-
-def estimate_normals(
-    points: np.ndarray,
-    *,
-    k: int = NORMAL_K,
-    viewpoints: np.ndarray | None = None,
-    up: np.ndarray | None = None,
-) -> np.ndarray:
-    """PCA normals over the ``k`` nearest neighbours, consistently oriented.
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-        Positions, n >= 3.
-    k : int
-        Neighbours per point (itself included), clamped to n.
-    viewpoints : (3,) or (n, 3) float64, optional
-        Scanner position(s): each normal is flipped to face its viewpoint.
-    up : (3,) float64, optional
-        Tie-break for open, flat components without viewpoints (see :func:`orient_normals`).
-
-    Returns
-    -------
-    normals : (n, 3) float32
-        Unit normals.
-    """
-    from scipy.spatial import cKDTree
-
-    n = len(points)
-    if n < 3:
-        raise InputError(
-            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
-        )
-    k = min(k, n)
-    tree = cKDTree(points)
-    normals = np.empty((n, 3), dtype=np.float64)
-    graph_k = min(ORIENT_K, n - 1)
-    nb_idx = np.empty((n, graph_k), dtype=np.int64) if viewpoints is None else None
-    nb_dist = np.empty((n, graph_k), dtype=np.float64) if viewpoints is None else None
-    for start in range(0, n, _BLOCK):
-        stop = min(start + _BLOCK, n)
-        dist, idx = tree.query(points[start:stop], k=k, workers=-1)
-        nb = points[idx]  # (b, k, 3) float64
-        nb -= nb.mean(axis=1, keepdims=True)  # centre first: coordinates may be ~1e6
-        cov = np.einsum("bki,bkj->bij", nb, nb)
-        _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
-        normals[start:stop] = vecs[:, :, 0]
-        if nb_idx is not None:
-            # column 0 is (normally) the point itself; keep the next graph_k neighbours
-            nb_idx[start:stop] = idx[:, 1 : graph_k + 1]
-            nb_dist[start:stop] = dist[:, 1 : graph_k + 1]
-    if viewpoints is not None:
-        to_view = np.asarray(viewpoints, dtype=np.float64) - points
-        flip = np.einsum("ij,ij->i", normals, to_view) < 0
-        normals[flip] *= -1
-    else:
-        normals = orient_normals(points, normals, nb_idx, nb_dist, up=up)
-    return np.ascontiguousarray(normals, dtype=np.float32)
-
-
-def orient_normals(
-    points: np.ndarray,
-    normals: np.ndarray,
-    nb_idx: np.ndarray,
-    nb_dist: np.ndarray,
-    *,
-    up: np.ndarray | None = None,
-) -> np.ndarray:
-    """Flip normals so that neighbours agree, then point each connected part outward.
-
-    Signs propagate along a minimum spanning tree of the neighbour graph with edge cost
-    ``1 - |n_i . n_j| + ORIENT_DISTANCE_WEIGHT * d_ij / median(d)`` (Hoppe et al. 1992). Each
-    connected component then gets the global sign under which most of its normals point away
-    from its centroid; when that vote is undecided (an open, flat patch) and ``up`` is given,
-    the component faces ``up`` instead.
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-    normals : (n, 3) float
-        Unoriented unit normals.
-    nb_idx : (n, m) int
-        Neighbour indices per point (itself excluded).
-    nb_dist : (n, m) float
-        Matching distances.
-    up : (3,) float, optional
-
-    Returns
-    -------
-    normals : (n, 3) float64
-        The same directions, flipped where needed.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import (
-        breadth_first_order,
-        connected_components,
-        minimum_spanning_tree,
-    )
-
-    n = len(points)
-    normals = np.asarray(normals, dtype=np.float64).copy()
-    rows = np.repeat(np.arange(n), nb_idx.shape[1])
-    cols = nb_idx.ravel()
-    keep = rows != cols
-    rows, cols = rows[keep], cols[keep]
-    dist = nb_dist.ravel()[keep]
-    scale = np.median(dist[dist > 0]) if np.any(dist > 0) else 1.0
-    dots = np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols]))
-    # the constant keeps every weight > 0: scipy's sparse graphs drop explicit zeros
-    weight = (1.0 - dots) + ORIENT_DISTANCE_WEIGHT * dist / scale + 1e-9
-    graph = coo_matrix((weight, (rows, cols)), shape=(n, n)).tocsr()
-    tree = minimum_spanning_tree(graph)
-    tree = (tree + tree.T).tocoo()
-    ncomp, label = connected_components(tree, directed=False)
-    # one BFS from a virtual root n linked to a representative of every component
-    reps = np.unique(label, return_index=True)[1]
-    r = np.concatenate([tree.row, np.full(ncomp, n), reps])
-    c = np.concatenate([tree.col, reps, np.full(ncomp, n)])
-    full = coo_matrix((np.ones(r.size), (r, c)), shape=(n + 1, n + 1)).tocsr()
-    _, pred = breadth_first_order(full, n, directed=False, return_predecessors=True)
-    pred = pred[:n].astype(np.int64)
-    is_root = pred == n
-    parent = np.where(is_root, np.arange(n), pred)
-    # sign relative to the parent, then the product along the path to the root by pointer jumping
-    rel = np.where(np.einsum("ij,ij->i", normals, normals[parent]) < 0, -1.0, 1.0)
-    rel[is_root] = 1.0
-    sign, jump = rel, parent
-    # invariant: sign[i] is the product of rel along the path from i up to (excluding) jump[i];
-    # roots are fixed points with sign 1, so once every jump[i] is a root we are done
-    while True:
-        up_two = jump[jump]
-        if np.array_equal(up_two, jump):
-            break
-        sign = sign * sign[jump]
-        jump = up_two
-    normals *= sign[:, None]
-
-    # global sign per component: majority outward from the component's centroid
-    counts = np.bincount(label, minlength=ncomp)
-    centroid = (
-        np.stack(
-            [np.bincount(label, weights=points[:, j], minlength=ncomp) for j in range(3)], axis=1
-        )
-        / counts[:, None]
-    )
-    small = counts < ORIENT_K  # a few stray points: their own centroid says nothing
-    centroid[small] = points.mean(axis=0)
-    outward = np.einsum("ij,ij->i", normals, points - centroid[label])
-    votes = np.bincount(label, weights=(outward > 0).astype(float), minlength=ncomp)
-    decided = np.bincount(label, weights=(outward != 0).astype(float), minlength=ncomp)
-    frac = np.divide(votes, decided, out=np.full(ncomp, 0.5), where=decided > 0)
-    flip = frac < 0.5
-    if up is not None:
-        undecided = np.abs(frac - 0.5) <= OUTWARD_UNDECIDED_MARGIN
-        facing = np.bincount(label, weights=(normals @ up > 0).astype(float), minlength=ncomp)
-        flip = np.where(undecided, facing < counts / 2, flip)
-    normals[flip[label]] *= -1
-    return normals
-
-
-def estimate_radii(points: np.ndarray, *, k: int = RADIUS_K, factor: float = RADIUS_FACTOR):
-    """Surfel radii from local spacing: ``r_i = factor * d_k(i)``.
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-    k : int
-        Which neighbour's distance measures the spacing (itself not counted), clamped to n - 1.
-    factor : float
-        See :data:`RADIUS_FACTOR` for how it was chosen.
-
-    Returns
-    -------
-    radii : (n,) float32
-        Positive radii. Duplicated points get the radius their position has in the cloud
-        without duplicates (so stacks of coincident points never give d_k = 0).
-    """
-    n = len(points)
-    if n < 2:
-        raise InputError("radii: cannot be estimated from a single point; pass radii")
-    dk = _knn(points, min(k, n - 1))[0][:, -1]
-    if not np.all(dk > 0):
-        # stacks of duplicates: measure the spacing among distinct positions, so duplicates get
-        # the radius of the position they share (a positive floor from the local spacing)
-        uniq, inverse = np.unique(points, axis=0, return_inverse=True)
-        if len(uniq) == 1:
-            raise InputError(f"radii: cannot be estimated, all {n} points coincide; pass radii")
-        dk = _knn(uniq, min(k, len(uniq) - 1))[0][:, -1][inverse.reshape(-1)]
-    out = (factor * dk).astype(np.float32)
-    # float32 rounding must not produce 0 for tiny (but positive) spacings
-    return np.maximum(out, np.finfo(np.float32).tiny)
-
-
-# The coverage radius of a point is the radius of its Voronoi cell in its tangent plane: the
-# farthest point of the surface that is closer to it than to any other sample. Disks of that
-# radius cover the surface exactly (Voronoi cells tile it); a margin adds the overlap that the
-# interpolation blends over and absorbs curvature and the sampled directions' underestimate.
-COVER_K = 10
-# Directions sampled around each point when measuring its Voronoi cell (underestimates the
-# cell's radius by at most 1 - cos(pi / 16), 2%).
-COVER_DIRECTIONS = 16
-# Margin over the Voronoi radius: measured hole-free on Poisson-disk, uniform random, jittered
-# and anisotropic samplings and on the Fibonacci sphere (tests/test_cloud.py).
-COVER_MARGIN = 1.2
-# Cap in units of the COVER_K-th neighbour distance: an open boundary has no bisector on its
-# outer side, and a near-tangent one would put the cell's far end at a huge distance.
-COVER_CAP = 1.0
-# Global cap in units of the cloud's 99th-percentile radius: a small stray cluster (a few
-# points off the surface, common in raw scans) has no neighbours around it, and its cell would
-# reach out to the distant surface: disks a hundred times the typical size (seen on the dragon
-# scans). Surfaces sampled over 4x more sparsely than the sparsest percent of the cloud get
-# small holes instead.
-COVER_GLOBAL_CAP = 4.0
-
-
-def coverage_radii(points: np.ndarray, normals: np.ndarray, *, k: int = COVER_K,
-                   margin: float = COVER_MARGIN, cap: float = COVER_CAP, tree=None) -> np.ndarray:
-    """Per-point radii just large enough to cover the surface: margin x the Voronoi-cell radius.
-
-    For each point, its ``k`` nearest neighbours are projected on its tangent plane; along each
-    of COVER_DIRECTIONS directions the cell ends at the nearest perpendicular bisector. The
-    cell's radius is the largest such distance over the directions that have a bisector
-    (directions without one face an open boundary, which needs no cover beyond the samples).
-
-    Parameters
-    ----------
-    points : (n, 3) float64
-    normals : (n, 3) float unit normals
-
-    Returns
-    -------
-    radii : (n,) float32, positive
-    """
-    n = len(points)
-    if n < 2:
-        raise InputError("radii: cannot be estimated from a single point; pass radii")
-    k = min(k, n - 1)
-    dist, idx = _knn(points, k, tree)
-    ang = np.linspace(0.0, 2 * np.pi, COVER_DIRECTIONS, endpoint=False)
-    out = np.empty(n, np.float32)
-    block = 16384
-    for b0 in range(0, n, block):
-        b1 = min(n, b0 + block)
-        nn = np.asarray(normals[b0:b1], dtype=np.float64)
-        q = points[idx[b0:b1]] - points[b0:b1, None, :]             # (m, k, 3)
-        # tangent basis (t1, t2) per point
-        helper = np.where(np.abs(nn[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        t1 = np.cross(nn, helper)
-        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-        t2 = np.cross(nn, t1)
-        x = np.einsum("mkj,mj->mk", q, t1).astype(np.float32)
-        y = np.einsum("mkj,mj->mk", q, t2).astype(np.float32)
-        r2 = x * x + y * y                                           # (m, k)
-        proj = x[:, :, None] * np.cos(ang, dtype=np.float32) + y[:, :, None] * np.sin(ang, dtype=np.float32)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(proj > 1e-12 * np.sqrt(r2[:, :, None]) + 0.0, r2[:, :, None] / (2 * proj), np.inf)
-        s[~(r2[:, :, None] > 0) | np.isnan(s)] = np.inf
-        edge = s.min(axis=1)                                         # (m, D)
-        finite = np.isfinite(edge)
-        cell = np.where(finite, edge, 0.0).max(axis=1)
-        dk = dist[b0:b1, -1]
-        r = np.minimum(margin * cell, cap * dk)
-        # isolated or degenerate (no bisector anywhere): half the nearest-neighbour distance
-        fallback = ~(r > 0)
-        if fallback.any():
-            d1 = dist[b0:b1, 0]
-            r[fallback] = np.maximum(0.5 * d1[fallback], cap * dk[fallback])
-        out[b0:b1] = r
-    bad = ~(out > 0)
-    if bad.any():  # stacks of duplicates: the spacing-based estimate knows how to handle them
-        out[bad] = estimate_radii(points)[bad]
-    if n >= 100:  # too few points for a meaningful percentile below that
-        np.minimum(out, np.float32(COVER_GLOBAL_CAP * np.quantile(out, 0.99)), out=out)
-    return out
-
-
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals of a triangle mesh (follows the face winding).
 
@@ -543,10 +230,10 @@ class PointCloud:
         1e6..1e7, where float32 keeps only decimetres).
     normals : (n, 3) array_like, optional
         Normals; normalised. Zero rows are an error. If omitted they are estimated on first
-        access (PCA over :data:`NORMAL_K` neighbours, consistently oriented) and cached.
+        access (:func:`pointviz.estimation.estimate_normals`, consistently oriented) and cached.
     radii : (n,) array_like or scalar, optional
-        Disk radii > 0. If omitted they are estimated on first access from the local spacing
-        (``RADIUS_FACTOR * d_k`` with ``k = RADIUS_K``) and cached.
+        Disk radii > 0. If omitted they are estimated on first access so that the disks cover
+        the surface (:func:`pointviz.estimation.coverage_radii`) and cached.
     colors : (n, 3) array_like, optional
         sRGB colours: floats in [0, 1] or 8-bit integers 0..255 (uint16 is scaled by 65535).
         An RGBA array's alpha is dropped. Stored as float32 in [0, 1].
@@ -618,6 +305,8 @@ class PointCloud:
             scan_index = _validate_per_point("scan_index", si, n, np.int32)
         self.scan_index = scan_index
         self.notes: list[str] = list(notes) if notes is not None else []
+        #: What :meth:`fitted` changed (a dict), or None for a cloud that was not fitted.
+        self.fit_report: dict | None = None
         for arr in (self._normals, self._radii, self._colors):
             if arr is not None:
                 arr.setflags(write=False)
@@ -649,6 +338,63 @@ class PointCloud:
             est.setflags(write=False)
             self._radii = est
         return self._radii
+
+    @property
+    def is_raw_scan(self) -> bool:
+        """Whether this is raw scan data that :meth:`fitted` is meant for: no normals were given
+        and the scanner viewpoints are known (registered ``.conf`` scans, clouds with
+        viewpoints), and it has not been fitted yet."""
+        return (not self._normals_given and self.viewpoints is not None
+                and getattr(self, "fit_report", None) is None)
+
+    def fitted(self, *, thin: float | None = None, quadric: bool = True,
+               threads: int = 0) -> PointCloud:
+        """A copy moved onto a robust local fit of the surface, without redundant points.
+
+        See :func:`pointviz.estimation.fit_surface`: each point moves onto a quadric fitted to
+        its neighbourhood across all scans and takes that fit's normal; where scans overlap,
+        points within the spacing of a kept point are dropped. ``notes`` gets one line saying
+        what changed, and ``fit_report`` holds it as numbers (``points_in``, ``points_kept``,
+        ``mean_shift``, ``mean_shift_spacings``, ``unmoved``) and that line (``summary``).
+
+        Parameters
+        ----------
+        thin : float, optional
+            Thinning radius in units of each point's spacing in its own scan (default
+            :data:`pointviz.estimation.FIT_THIN`; 0 keeps every point).
+        quadric : bool
+            Fit quadrics (default) or planes.
+        threads : int
+            Worker threads, 0 for all cores; results do not depend on it.
+
+        Returns
+        -------
+        PointCloud
+            Normals are the fit's (counted as estimated: ``has_normals`` stays as it was);
+            radii are estimated afresh on first access, for the new spacing.
+        """
+        from .estimation import FIT_THIN
+
+        fit = fit_surface(
+            self._points, self._normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
+            up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric, threads=threads)
+        keep = fit.keep
+        out = self.subset(keep)  # every per-point attribute, estimated radii dropped
+        for name, arr in (("_points", fit.points[keep]), ("_normals", fit.normals[keep])):
+            arr = np.ascontiguousarray(arr)
+            arr.setflags(write=False)
+            setattr(out, name, arr)
+        out.notes.append(fit.summary())
+        shift = float(fit.shift.mean())
+        out.fit_report = {
+            "points_in": len(keep),
+            "points_kept": fit.kept,
+            "mean_shift": shift,
+            "mean_shift_spacings": shift / fit.spacing if fit.spacing > 0 else 0.0,
+            "unmoved": fit.unmoved,
+            "summary": fit.summary(),
+        }
+        return out
 
     @property
     def colors(self) -> np.ndarray | None:
@@ -717,6 +463,7 @@ class PointCloud:
         out.intensity = extra.get("intensity")
         out.scan_index = extra.get("scan_index")
         out.notes = list(self.notes)
+        out.fit_report = getattr(self, "fit_report", None)
         return out
 
     def subset(self, index_or_mask) -> PointCloud:

@@ -45,7 +45,7 @@ __all__ = [
 ]  # fmt: skip
 
 
-def load(path, *, sample=None, estimate=True, **kw) -> PointCloud:
+def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     """Load a point cloud, mesh, LiDAR file or Stanford ``.conf`` registration.
 
     Parameters
@@ -61,6 +61,11 @@ def load(path, *, sample=None, estimate=True, **kw) -> PointCloud:
         If True (default), normals and radii the file does not provide are estimated before
         returning, so problems surface here with the file name and the cloud is ready to
         render. If False they are left to be estimated lazily on first access.
+    fit : bool, optional
+        Move raw scans onto a robust fit of their surface and drop the points that add nothing
+        where scans overlap (:meth:`PointCloud.fitted`; ``notes`` and ``fit_report`` say what
+        changed). Default: with ``estimate`` and for raw scans only, i.e. files without normals
+        whose scanner viewpoints are known (``.conf`` registrations).
     **kw
         ``rng`` (numpy Generator or seed, for ``sample``), ``up`` and ``name`` (override what
         the loader sets: ``up=(0, 0, 1)`` for LAS/LAZ, the file name).
@@ -91,6 +96,13 @@ def load(path, *, sample=None, estimate=True, **kw) -> PointCloud:
     if "up" in kw:
         cloud.up = None if kw["up"] is None else _unit_vector("up", kw["up"])
     cloud.name = kw.get("name", path.name)
+    if fit is None:
+        fit = estimate and cloud.is_raw_scan
+    if fit:
+        try:
+            cloud = cloud.fitted()
+        except InputError as exc:
+            raise FileFormatError(f"{path}: {exc}") from exc
     if estimate:
         try:
             cloud.normals  # noqa: B018 - computes and caches

@@ -7,12 +7,14 @@
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/array.h>
 #include <nanobind/stl/unique_ptr.h>
+#include <nanobind/stl/tuple.h>
 
 #include <algorithm>
 #include <array>
 #include <cstdint>
 #include <cstring>
 #include <optional>
+#include <tuple>
 
 #include <memory>
 
@@ -21,6 +23,7 @@
 
 #include "pointviz/cast.h"
 #include "pointviz/kdtree.h"
+#include "pointviz/preprocess.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
@@ -311,6 +314,88 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
     return nb::make_tuple(bufs, d);
 }
 
+
+// ---- preprocessing (raw points to surfels) -------------------------------------------------
+
+/// Borrowed views of a cloud's arrays; viewpoints (1 or n rows) and scan groups optional.
+PointsView points_view(const CArray<double> &points, const std::optional<CArray<double>> &viewpoints,
+                       const std::optional<CArray<int32_t>> &group) {
+    PointsView v;
+    v.n = points.shape(0);
+    check_rows("points", points.ndim(), v.n, points.ndim() > 1 ? points.shape(1) : 0, v.n, 3);
+    v.points = points.data();
+    if (viewpoints) {
+        size_t m = viewpoints->ndim() == 1 ? 1 : viewpoints->shape(0);
+        if (viewpoints->ndim() == 1)
+            check_rows("viewpoints", 1, viewpoints->shape(0), 0, 3, 0);
+        else
+            check_rows("viewpoints", viewpoints->ndim(), m, viewpoints->shape(1), v.n == 1 ? 1 : m, 3);
+        if (m != 1 && m != v.n) throw nb::value_error("viewpoints: wrong shape");
+        v.viewpoints = viewpoints->data();
+        v.n_viewpoints = m;
+    }
+    if (group) {
+        check_rows("scan_index", group->ndim(), group->shape(0), 0, v.n, 0);
+        v.group = group->data();
+    }
+    return v;
+}
+
+void check_normals(const CArray<float> &normals, size_t n) {
+    check_rows("normals", normals.ndim(), normals.shape(0),
+               normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
+}
+
+/// Runs one preprocessing step with the GIL released.
+template <class Fn>
+auto run_step(Fn &&fn) {
+    Progress progress;
+    nb::gil_scoped_release release;
+    return fn(progress);
+}
+
+template <class T>
+nb::ndarray<nb::numpy, T> to_array(const std::vector<T> &v, std::initializer_list<size_t> shape) {
+    T *d;
+    auto a = new_array<T>(shape, &d);
+    std::copy(v.begin(), v.end(), d);
+    return a;
+}
+
+nb::dict normals_dict(const NormalsOutput &o, size_t n) {
+    nb::dict d;
+    d["normals"] = to_array(o.est.normals, {n, 3});
+    d["support"] = to_array(o.est.support, {n});
+    d["spread"] = to_array(o.est.spread, {n});
+    d["borrowed"] = o.est.borrowed;
+    d["arbitrary"] = o.est.arbitrary;
+    d["components"] = o.orient.components;
+    return d;
+}
+
+NormalOptions normal_options(uint32_t k_min, uint32_t k_max, double confidence, int threads) {
+    NormalOptions o;
+    o.k_min = k_min;
+    o.k_max = k_max;
+    o.confidence = confidence;
+    o.threads = threads;
+    return o;
+}
+
+/// Orientation settings: neighbours linked, the edge-length weight, the undecided margin.
+using OrientArgs = std::tuple<uint32_t, double, double>;
+
+OrientOptions orient_options(const OrientArgs &args, std::optional<std::array<double, 3>> up) {
+    OrientOptions o;
+    o.k = std::get<0>(args);
+    o.distance_weight = std::get<1>(args);
+    o.undecided_margin = std::get<2>(args);
+    if (up) {
+        o.has_up = true;
+        for (int a = 0; a < 3; ++a) o.up[a] = (*up)[a];
+    }
+    return o;
+}
 }  // namespace
 
 NB_MODULE(_core, m) {
@@ -531,4 +616,100 @@ NB_MODULE(_core, m) {
              "t_min"_a = 0.0, "pixel_angle"_a = 0.0, "threads"_a = 0, "stats"_a = true);
 
     pointviz_bindings::bind_readers(m);
+
+    // ---- preprocessing: one function per step, each run with the GIL released ----------------
+    nb::register_exception_translator([](const std::exception_ptr &p, void *) {
+        try {
+            std::rethrow_exception(p);
+        } catch (const Cancelled &e) {
+            nb::object cls = nb::module_::import_("pointviz.errors").attr("CancelledError");
+            PyErr_SetString(cls.ptr(), e.what());
+        }
+    });
+
+    m.def("knn", [](CArray<double> points, uint32_t k, int threads) {
+        PointsView v = points_view(points, std::nullopt, std::nullopt);
+        KnnOutput o = run_step([&](Progress &pr) { return knn_points(v, k, threads, pr); });
+        size_t n = o.table.n, kk = o.table.k;
+        return nb::make_tuple(to_array(o.dist, {n, kk}), to_array(o.table.index, {n, kk}));
+    }, "points"_a, "k"_a, "threads"_a = 0,
+       "(dist (n, k) float64, index (n, k) uint32): k nearest neighbours, the point excluded");
+
+    m.def("estimate_normals", [](CArray<double> points, std::optional<CArray<double>> viewpoints,
+                                 std::optional<std::array<double, 3>> up, uint32_t k_min,
+                                 uint32_t k_max, double confidence, OrientArgs orient, int threads) {
+        PointsView v = points_view(points, viewpoints, std::nullopt);
+        NormalOptions no = normal_options(k_min, k_max, confidence, threads);
+        OrientOptions oo = orient_options(orient, up);
+        NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
+        return normals_dict(o, v.n);
+    }, "points"_a, "viewpoints"_a.none(), "up"_a.none(), "k_min"_a, "k_max"_a, "confidence"_a,
+       "orient"_a, "threads"_a = 0);
+
+    m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
+                               std::optional<CArray<double>> viewpoints,
+                               std::optional<std::array<double, 3>> up, OrientArgs orient,
+                               int threads) {
+        PointsView v = points_view(points, viewpoints, std::nullopt);
+        check_normals(normals, v.n);
+        std::vector<float> out(normals.data(), normals.data() + 3 * v.n);
+        OrientOptions oo = orient_options(orient, up);
+        OrientResult r = run_step([&](Progress &pr) {
+            return orient_points(v, out.data(), oo, threads, pr);
+        });
+        return nb::make_tuple(to_array(out, {v.n, 3}), r.components);
+    }, "points"_a, "normals"_a, "viewpoints"_a.none(), "up"_a.none(), "orient"_a, "threads"_a = 0);
+
+    m.def("coverage_radii", [](CArray<double> points, CArray<float> normals, uint32_t k,
+                               uint32_t directions, double margin, double cap, double global_cap,
+                               int threads) {
+        PointsView v = points_view(points, std::nullopt, std::nullopt);
+        check_normals(normals, v.n);
+        CoverOptions co;
+        co.directions = directions;
+        co.margin = margin;
+        co.cap = cap;
+        co.global_cap = global_cap;
+        co.threads = threads;
+        std::vector<float> r = run_step([&](Progress &pr) {
+            return radii_points(v, normals.data(), k, co, pr);
+        });
+        return to_array(r, {v.n});
+    }, "points"_a, "normals"_a, "k"_a, "directions"_a, "margin"_a, "cap"_a, "global_cap"_a,
+       "threads"_a = 0);
+
+    m.def("fit_surface", [](CArray<double> points, std::optional<CArray<float>> normals,
+                            std::optional<CArray<double>> viewpoints,
+                            std::optional<CArray<int32_t>> scan_index,
+                            std::optional<std::array<double, 3>> up, uint32_t k_min, uint32_t k_max,
+                            double confidence, OrientArgs orient, uint32_t min_support,
+                            bool quadric, int passes, int robust_passes, double robust_width,
+                            double thin, int threads) {
+        PointsView v = points_view(points, viewpoints, scan_index);
+        if (normals) check_normals(*normals, v.n);
+        NormalOptions no = normal_options(k_min, k_max, confidence, threads);
+        OrientOptions oo = orient_options(orient, up);
+        FitOptions fo;
+        fo.min_support = min_support;
+        fo.quadric = quadric;
+        fo.passes = passes;
+        fo.robust_passes = robust_passes;
+        fo.robust_width = robust_width;
+        fo.thin = thin;
+        fo.threads = threads;
+        const float *nrm = normals ? normals->data() : nullptr;
+        FitOutput o = run_step([&](Progress &pr) { return fit_points(v, nrm, no, oo, fo, pr); });
+        nb::dict d;
+        d["points"] = to_array(o.fit.points, {v.n, 3});
+        d["normals"] = to_array(o.fit.normals, {v.n, 3});
+        d["keep"] = to_array(o.fit.keep, {v.n});
+        d["shift"] = to_array(o.fit.shift, {v.n});
+        d["spacing"] = to_array(o.fit.spacing, {v.n});
+        d["kept"] = o.fit.kept;
+        d["unmoved"] = o.fit.unmoved;
+        if (!nrm) d["estimate"] = normals_dict(o.normals, v.n);
+        return d;
+    }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
+       "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,
+       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "threads"_a = 0);
 }

@@ -15,6 +15,8 @@ def add_input_options(p) -> None:
     p.add_argument("input", help="point cloud, mesh, registered scans (.conf), or 'demo'")
     p.add_argument("--sample", type=int, default=None, metavar="N",
                    help="for meshes: sample N surface points instead of using the vertices")
+    p.add_argument("--no-fit", dest="fit", action="store_false", default=None,
+                   help="raw scans: keep the points as scanned (no surface fit, no thinning)")
 
 
 def add_render_options(p) -> None:
@@ -54,7 +56,15 @@ def load_input(args):
         return demo_scene()
     from ..io import load
 
-    return load(args.input, sample=args.sample), None
+    cloud = load(args.input, sample=args.sample, fit=getattr(args, "fit", None))
+    report_fit(cloud)
+    return cloud, None
+
+
+def report_fit(cloud) -> None:
+    """One line on stderr saying what the surface fit of raw scans changed, if it ran."""
+    if getattr(cloud, "fit_report", None) is not None:
+        print(f"pointviz: {cloud.fit_report['summary']}", file=sys.stderr)
 
 
 def parse_lights(specs):

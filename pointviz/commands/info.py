@@ -22,7 +22,7 @@ def run(args) -> int:
     from ..surfels import SurfelScene
 
     t0 = time.perf_counter()
-    cloud = load(args.input, sample=args.sample)
+    cloud = load(args.input, sample=args.sample, fit=args.fit)
     t_load = time.perf_counter() - t0
     t0 = time.perf_counter()
     radii = cloud.radii
@@ -45,6 +45,8 @@ def run(args) -> int:
         "nodes_per_surfel": round(scene.nodes_per_surfel, 3),
         "bytes_per_surfel": round(scene.memory_bytes / len(cloud), 1),
     }
+    if cloud.fit_report is not None:
+        facts["surface_fit"] = cloud.fit_report["summary"]
     if args.json:
         print(json.dumps(facts, indent=1))
     else:

@@ -86,7 +86,7 @@ BAD_FILES = [
     ("las-million-vlrs", "a.las", _las_patch(S.LAS_N_VLRS, "<I", 10**6), "variable-length"),
     ("las-not-las", "a.las", b"LASX" + bytes(400), "LASF"),
     ("xyz-text-garbage", "a.xyz", b"hello world\nthis is not\na point cloud\n",
-     "no points could be read"),
+     "data row 0 holds a non-number 'hello'"),
     ("obj-garbage", "a.obj", b"v 1 2\nf 1 2 3\nvn x y z\n", "no vertices could be read"),
     ("conf-recursive", "a.conf", b"bmesh a.conf 0 0 0 0 0 0 1\n", "is a .conf file"),
     ("empty", "a.ply", b"", "empty"),

@@ -1,0 +1,60 @@
+// pointviz — raw points to surfels in one call each: the spatial index, normals and their
+// orientation, the surface fit and radii composed for the binding layer (one call per step, each
+// taking the Progress of the caller).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "pointviz/knn.h"
+#include "pointviz/normals.h"
+#include "pointviz/orient.h"
+#include "pointviz/progress.h"
+#include "pointviz/radii.h"
+#include "pointviz/surface_fit.h"
+
+namespace pointviz {
+
+/// A cloud's points and what is known about where they were seen from.
+struct PointsView {
+    const double *points = nullptr;      ///< (n, 3)
+    size_t n = 0;
+    const double *viewpoints = nullptr;  ///< (1 or n, 3) scanner positions, or null
+    size_t n_viewpoints = 0;
+    const int32_t *group = nullptr;      ///< (n,) scan of each point, or null
+};
+
+/// k nearest neighbours of every point (itself excluded) and their distances.
+struct KnnOutput {
+    NeighbourTable table;
+    std::vector<double> dist;   ///< (n, k)
+};
+KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &progress);
+
+/// Oriented normals: toward the viewpoints when given, else along a spanning tree.
+struct NormalsOutput {
+    NormalResult est;
+    OrientResult orient;
+    size_t toward_viewpoint_flips = 0;
+};
+NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
+                             const OrientOptions &oopt, Progress &progress);
+
+/// Orientation of given unoriented normals (in place) over `k` neighbours or toward viewpoints.
+OrientResult orient_points(const PointsView &in, float *normals, const OrientOptions &oopt,
+                           int threads, Progress &progress);
+
+/// Coverage radii of points with normals, over `k` neighbours.
+std::vector<float> radii_points(const PointsView &in, const float *normals, uint32_t k,
+                                const CoverOptions &opt, Progress &progress);
+
+/// Normals (estimated and oriented if `normals` is null), then the surface fit and thinning.
+struct FitOutput {
+    NormalsOutput normals;     ///< empty when normals were given
+    FitResult fit;
+};
+FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
+                     const OrientOptions &oopt, const FitOptions &fopt, Progress &progress);
+
+}  // namespace pointviz

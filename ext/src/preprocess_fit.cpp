@@ -1,0 +1,248 @@
+// pointviz — robust local surface fit and thinning of overlapping scans (see surface_fit.h).
+#include "pointviz/surface_fit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "pointviz/parallel.h"
+#include "pointviz/pca.h"
+
+namespace pointviz {
+
+namespace {
+
+/// Spatial weight (1 - d^2 / h^2)^2 with h = kFitReach x the farthest fitted neighbour's
+/// distance (as for the normals: the farthest keeps 31% weight).
+constexpr double kFitReach = 1.5;
+/// Largest number of unknowns of a fit.
+constexpr int kMaxTerms = 6;
+/// A Cholesky pivot below this fraction of the matrix's largest diagonal entry means the
+/// neighbourhood does not determine the fit (its points lie on a curve in the tangent plane).
+constexpr double kPivotFloor = 1e-10;
+
+/// Solves the symmetric positive definite system m x = r of size t in place (Cholesky).
+bool solve_spd(double m[kMaxTerms][kMaxTerms], double *r, int t) {
+    double scale = 0;
+    for (int a = 0; a < t; ++a) scale = std::max(scale, m[a][a]);
+    if (!(scale > 0)) return false;
+    for (int j = 0; j < t; ++j) {
+        double d = m[j][j];
+        for (int q = 0; q < j; ++q) d -= m[j][q] * m[j][q];
+        if (!(d > kPivotFloor * scale)) return false;
+        m[j][j] = std::sqrt(d);
+        for (int i = j + 1; i < t; ++i) {
+            double s = m[i][j];
+            for (int q = 0; q < j; ++q) s -= m[i][q] * m[j][q];
+            m[i][j] = s / m[j][j];
+        }
+    }
+    for (int i = 0; i < t; ++i) {  // L y = r
+        double s = r[i];
+        for (int q = 0; q < i; ++q) s -= m[i][q] * r[q];
+        r[i] = s / m[i][i];
+    }
+    for (int i = t - 1; i >= 0; --i) {  // L^T x = y
+        double s = r[i];
+        for (int q = i + 1; q < t; ++q) s -= m[q][i] * r[q];
+        r[i] = s / m[i][i];
+    }
+    return true;
+}
+
+/// Weighted least squares of z on the first `t` terms of (1, u, v, u^2, uv, v^2).
+bool fit_terms(const std::vector<double> &u, const std::vector<double> &v,
+               const std::vector<double> &z, const std::vector<double> &w, int t, double *coef) {
+    double m[kMaxTerms][kMaxTerms] = {};
+    double r[kMaxTerms] = {};
+    for (size_t j = 0; j < u.size(); ++j) {
+        double f[kMaxTerms] = {1.0, u[j], v[j], u[j] * u[j], u[j] * v[j], v[j] * v[j]};
+        for (int a = 0; a < t; ++a) {
+            r[a] += w[j] * f[a] * z[j];
+            for (int b = 0; b <= a; ++b) m[a][b] += w[j] * f[a] * f[b];
+        }
+    }
+    for (int a = 0; a < t; ++a)
+        for (int b = a + 1; b < t; ++b) m[a][b] = m[b][a];
+    if (!solve_spd(m, r, t)) return false;
+    for (int a = 0; a < t; ++a) {
+        if (!std::isfinite(r[a])) return false;
+        coef[a] = r[a];
+    }
+    return true;
+}
+
+double eval_terms(const double *c, int t, double u, double v) {
+    double f[kMaxTerms] = {1.0, u, v, u * u, u * v, v * v};
+    double s = 0;
+    for (int a = 0; a < t; ++a) s += c[a] * f[a];
+    return s;
+}
+
+double dist2(const double *a, const double *b) {
+    return (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+           (a[2] - b[2]) * (a[2] - b[2]);
+}
+
+/// Scratch space of one worker.
+struct FitScratch {
+    std::vector<double> u, v, z, ws, w;
+};
+
+/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
+/// writes the projected position and the fit's normal. False: the fit failed or asked for a
+/// move beyond the neighbourhood.
+bool fit_point(const double *points, const float *normals, size_t i, const uint32_t *row,
+               uint32_t k, const FitOptions &opt, bool quadric, FitScratch &s, double *out_p,
+               float *out_n) {
+    const double *p = points + 3 * i;
+    double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
+    if (!(h2 > 0)) return false;
+    double h = std::sqrt(h2);
+    double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
+    tangent_basis(nn, t1, t2);
+    std::vector<double> &u = s.u, &v = s.v, &z = s.z, &ws = s.ws, &w = s.w;
+    u.assign(k, 0.0), v.assign(k, 0.0), z.assign(k, 0.0), ws.assign(k, 1.0);
+    for (uint32_t m = 0; m + 1 < k; ++m) {  // entry 0 is the point itself
+        const double *q = points + 3 * size_t(row[m]);
+        double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
+        u[m + 1] = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
+        v[m + 1] = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
+        z[m + 1] = (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h;
+        double t = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
+        ws[m + 1] = t * t;
+    }
+    w = ws;
+    int terms = quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;
+    double c[kMaxTerms];
+    bool ok = fit_terms(u, v, z, w, terms, c);
+    if (!ok && terms == kMaxTerms) ok = fit_terms(u, v, z, w, terms = 3, c);
+    for (int pass = 0; ok && pass < opt.robust_passes; ++pass) {
+        double sr = 0, sw = 0;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
+            sr += w[j] * r * r;
+            sw += w[j];
+        }
+        double s2 = sr / sw * opt.robust_width * opt.robust_width;
+        if (!(s2 > 0)) break;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
+            w[j] = ws[j] * std::exp(-r * r / s2);
+        }
+        double prev[kMaxTerms];
+        std::copy(c, c + terms, prev);
+        if (!fit_terms(u, v, z, w, terms, c)) std::copy(prev, prev + terms, c);
+    }
+    // the fit at the point's own tangential position: height a, slopes (b, c)
+    if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) return false;
+    double g[3];
+    for (int a = 0; a < 3; ++a) g[a] = nn[a] - c[1] * t1[a] - c[2] * t2[a];
+    double gl = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    for (int a = 0; a < 3; ++a) {
+        out_p[a] = p[a] + c[0] * h * nn[a];
+        out_n[a] = float(g[a] / gl);
+    }
+    return true;
+}
+
+}  // namespace
+
+FitResult fit_surface(const double *points, const float *normals, const uint32_t *support,
+                      const NeighbourTable &nb, const int32_t *group, const double *viewpoints,
+                      size_t n_viewpoints, const FitOptions &opt, Progress *progress) {
+    size_t n = nb.n;
+    FitResult res;
+    res.points.assign(points, points + 3 * n);
+    res.normals.assign(normals, normals + 3 * n);
+    res.keep.assign(n, 1);
+    res.shift.assign(n, 0.f);
+    res.spacing.assign(n, 0.0);
+    res.kept = n;
+    if (n == 0 || nb.k < 2) return res;
+    if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
+    std::vector<uint8_t> moved(n, 0);
+    // each pass fits the previous pass's positions and normals (the first: the input's): the
+    // noise left after one fit is ~1/sqrt(support) of the input's, so the next fit's normals
+    // are that much better, and the surface is fitted over a wider effective support
+    std::vector<double> src_p;
+    std::vector<float> src_n;
+    constexpr size_t kGrain = 1024;
+    int passes = std::max(opt.passes, 1);
+    if (progress) progress->total.fetch_add(n * size_t(passes - 1), std::memory_order_relaxed);
+    for (int pass = 0; pass < passes; ++pass) {
+        const double *sp = points;
+        const float *sn = normals;
+        if (pass > 0) {
+            src_p = res.points;
+            src_n = res.normals;
+            sp = src_p.data();
+            sn = src_n.data();
+        }
+        bool quadric = opt.quadric && pass == passes - 1;
+        parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+            FitScratch scratch;
+            for (size_t i = b; i < e; ++i) {
+                uint32_t k = std::max<uint32_t>(support ? support[i] : opt.min_support,
+                                                opt.min_support);
+                k = std::min<uint32_t>(k, nb.k + 1);
+                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, scratch, &res.points[3 * i],
+                              &res.normals[3 * i]))
+                    moved[i] |= 1;
+            }
+            if (progress) progress->advance(e - b);
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+    }
+    for (size_t i = 0; i < n; ++i)
+        res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
+    check_cancel(progress);
+    res.unmoved = n - size_t(std::count(moved.begin(), moved.end(), uint8_t(1)));
+    // spacing of each point within its own scan: its nearest neighbour from the same scan
+    std::vector<double> &spacing = res.spacing;
+    spacing.assign(n, 0.0);
+    std::vector<double> priority(n, 0.0);
+    for (size_t i = 0; i < n; ++i) {
+        const uint32_t *row = nb.row(i);
+        uint32_t j = row[0];
+        for (uint32_t m = 0; m < nb.k; ++m)
+            if (!group || group[row[m]] == group[i]) {
+                j = row[m];
+                break;
+            }
+        spacing[i] = std::sqrt(dist2(points + 3 * size_t(j), points + 3 * i));
+        if (viewpoints) {
+            const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
+            const double *q = res.points.data() + 3 * i;
+            const float *nn = res.normals.data() + 3 * i;
+            double d[3] = {vp[0] - q[0], vp[1] - q[1], vp[2] - q[2]};
+            double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            priority[i] = l > 0 ? (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2]) / l : 0.0;
+        }
+    }
+    check_cancel(progress);
+    if (!(opt.thin > 0)) return res;
+    // greedy thinning: the points seen most head-on first (then by index)
+    std::vector<uint32_t> order(n);
+    std::iota(order.begin(), order.end(), 0u);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
+    std::fill(res.keep.begin(), res.keep.end(), 0);
+    for (uint32_t i : order) {
+        double r2 = opt.thin * opt.thin * spacing[i] * spacing[i];
+        const uint32_t *row = nb.row(i);
+        const double *q = res.points.data() + 3 * size_t(i);
+        bool redundant = false;
+        for (uint32_t m = 0; m < nb.k && !redundant; ++m) {
+            uint32_t j = row[m];
+            if (!res.keep[j]) continue;
+            double d2 = dist2(res.points.data() + 3 * size_t(j), q);
+            redundant = d2 < r2 || d2 == 0.0;
+        }
+        res.keep[i] = !redundant;
+    }
+    res.kept = size_t(std::count(res.keep.begin(), res.keep.end(), uint8_t(1)));
+    return res;
+}
+
+}  // namespace pointviz

@@ -1,0 +1,105 @@
+// pointviz — coverage radii (see radii.h).
+#include "pointviz/radii.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "pointviz/parallel.h"
+#include "pointviz/pca.h"
+
+namespace pointviz {
+
+namespace {
+
+/// Most directions sampled per cell.
+constexpr uint32_t kMaxDirections = 64;
+
+/// Linear-interpolated quantile (numpy's default) of the positive values of `v`.
+double quantile(std::vector<float> v, double q) {
+    if (v.empty()) return 0.0;
+    double pos = q * double(v.size() - 1);
+    size_t lo = size_t(pos);
+    std::nth_element(v.begin(), v.begin() + lo, v.end());
+    double a = v[lo];
+    if (lo + 1 >= v.size()) return a;
+    double b = *std::min_element(v.begin() + lo + 1, v.end());
+    return a + (pos - double(lo)) * (b - a);
+}
+
+}  // namespace
+
+std::vector<float> coverage_radii(const double *points, const float *normals,
+                                  const NeighbourTable &nb, const CoverOptions &opt,
+                                  Progress *progress) {
+    size_t n = nb.n;
+    uint32_t k = nb.k;
+    std::vector<float> out(n, 0.f);
+    if (n == 0 || k == 0) return out;
+    uint32_t nd = std::min<uint32_t>(std::max<uint32_t>(opt.directions, 3), kMaxDirections);
+    // directions in float: the cell of each is a min over neighbours of one division, which the
+    // compiler runs 8 directions at a time
+    alignas(32) float cs[kMaxDirections], sn[kMaxDirections];
+    for (uint32_t a = 0; a < nd; ++a) {
+        double t = 2.0 * M_PI * a / nd;
+        cs[a] = float(std::cos(t));
+        sn[a] = float(std::sin(t));
+    }
+    if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
+    constexpr size_t kGrain = 4096;
+    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        alignas(32) float edge[kMaxDirections];
+        for (size_t i = b; i < e; ++i) {
+            const double *p = points + 3 * i;
+            double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
+            double l = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
+            for (int a = 0; a < 3; ++a) nn[a] /= l;
+            tangent_basis(nn, t1, t2);
+            const uint32_t *row = nb.row(i);
+            double d1 = 0, dk = 0;
+            const float inf = std::numeric_limits<float>::infinity();
+            for (uint32_t a = 0; a < nd; ++a) edge[a] = inf;
+            // along each direction the cell ends at the nearest perpendicular bisector
+            for (uint32_t m = 0; m < k; ++m) {
+                const double *q = points + 3 * size_t(row[m]);
+                double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
+                float x = float(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]);
+                float y = float(d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]);
+                float r2 = x * x + y * y;
+                double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                if (m == 0) d1 = dist;
+                dk = std::max(dk, dist);
+                if (!(r2 > 0.f)) continue;
+                float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
+                for (uint32_t a = 0; a < nd; ++a) {
+                    float proj = x * cs[a] + y * sn[a];
+                    float s = proj > floor_ ? r2 / (2.f * proj) : inf;
+                    edge[a] = std::min(edge[a], s);
+                }
+            }
+            double cell = 0.0;
+            for (uint32_t a = 0; a < nd; ++a)
+                if (edge[a] < inf) cell = std::max(cell, double(edge[a]));
+            double r = std::min(opt.margin * cell, opt.cap * dk);
+            // isolated or degenerate (no bisector anywhere): from the neighbour distances
+            if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);
+            float rf = float(r);
+            // rounding to float must not turn a tiny positive radius into 0
+            out[i] = r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
+        }
+        if (progress) progress->advance(e - b);
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    constexpr size_t kMinForQuantile = 100;  // too few points for a meaningful percentile
+    if (n >= kMinForQuantile) {
+        std::vector<float> pos;
+        pos.reserve(n);
+        for (float r : out) pos.push_back(r);
+        float cap = float(opt.global_cap * quantile(std::move(pos), 0.99));
+        if (cap > 0)
+            for (float &r : out) r = std::min(r, cap);
+    }
+    return out;
+}
+
+}  // namespace pointviz

@@ -1,0 +1,455 @@
+"""What raw points lack, estimated by the C++ core: neighbours, normals, orientation, radii and a
+surface fit of noisy, overlapping scans.
+
+Every function takes plain arrays and returns new ones; :class:`pointviz.PointCloud` calls them
+lazily for the normals and radii a file did not provide, and :meth:`PointCloud.fitted` for the
+surface fit. The work runs in the core on all cores (``threads=0``) with the GIL released, and
+its results are the same for any thread count.
+
+Pipeline for raw scans (no normals):
+
+1. k nearest neighbours on a KD-tree (:func:`knn`).
+2. Normals by weighted PCA over a neighbourhood chosen per point (:func:`estimate_normals`): it
+   grows from :data:`NORMAL_K_MIN` to :data:`NORMAL_K_MAX` points while the normal stays within
+   :data:`NORMAL_CONFIDENCE` standard errors of every smaller neighbourhood's (the
+   intersection-of-confidence-intervals rule), so noisy flat parts use many points and curved or
+   detailed parts few.
+3. Orientation (:func:`orient_normals`): toward the scanner when viewpoints are known, else along
+   a minimum spanning tree of the neighbour graph, each connected part facing outward.
+4. Optionally (:func:`fit_surface`, on by default for registered scans): every point moves onto a
+   robust quadric fit of its neighbourhood across all scans, and points that add nothing where
+   scans overlap are dropped.
+5. Radii that just cover the surface (:func:`coverage_radii`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+# Neighbourhood sizes of the normal (the point included). 8 is the first ring of samples around
+# a point (6 on a hexagonal sampling, 8 on a grid); 32 averages the noise of raw range scans
+# (0.1-0.4 % of the object) down to about 2 degrees on flat parts.
+NORMAL_K_MIN = 8
+NORMAL_K_MAX = 32
+# Standard errors within which a larger neighbourhood's normal must agree with every smaller
+# one's to be used (the noise level is the median residual variance of the first ring). Mean
+# errors measured on a random torus sampling, clean / 40 % of the spacing noise, a clean box and
+# virtual scans of a torus at 0.4 % noise (tests/test_estimation.py, benchmarks): 1.52 / 2.73 /
+# 2.33 / 5.31 degrees at 3; fixed k = 8: 1.77 / 13.8 / 1.35 / 29.3; k = 32: 1.40 / 2.64 / 3.63 /
+# 5.01. 2 stops too early in noise (3.70 on the noisy torus), 4 hardly adapts on edges.
+NORMAL_CONFIDENCE = 3.0
+# The fixed neighbourhood size of earlier versions (k=...) and of callers that ask for one.
+NORMAL_K = 16
+
+# Neighbours linked in the graph that propagates normal orientation (Hoppe et al. 1992 use a
+# k-NN "Riemannian graph" with k ~ 8): enough to keep a sampled surface in one piece, few enough
+# that the graph rarely jumps across thin parts (ears, fingers) to the other side.
+ORIENT_K = 8
+
+# Weight of the neighbour distance (in units of the median spacing) added to the Hoppe edge cost
+# 1 - |n_i . n_j|: on flat parts that cost is ~0 for every edge, and short edges must win ties.
+ORIENT_DISTANCE_WEIGHT = 0.1
+
+# A component whose normals point outward for a fraction in [0.5 - m, 0.5 + m] is "undecided"
+# (an open patch such as terrain); with an ``up`` hint it is oriented to face up instead. Terrain
+# is rarely flat: lidar/simple.las (a shallow valley) votes 0.605 for facing down, while closed
+# scans vote > 0.8 for their outside.
+OUTWARD_UNDECIDED_MARGIN = 0.2
+
+# The spacing radius of a point comes from the distance to its RADIUS_K-th nearest neighbour (not
+# counting itself): the 8th reaches past the first ring, so one close neighbour does not collapse
+# the radius.
+RADIUS_K = 8
+
+# r_i = RADIUS_FACTOR * d_8(i): the smallest factor that leaves no hole on a Fibonacci sphere,
+# jittered and anisotropic grids, with a margin (see tests/test_cloud.py).
+RADIUS_FACTOR = 0.65
+
+# Coverage radii (the core's CoverOptions): the radius of a point is COVER_MARGIN x the radius of
+# its Voronoi cell in its tangent plane, measured along COVER_DIRECTIONS directions among its
+# COVER_K nearest neighbours; capped at COVER_CAP x the COVER_K-th neighbour's distance and at
+# COVER_GLOBAL_CAP x the cloud's 99th-percentile radius (a stray cluster's cell would reach the
+# distant surface). Measured hole-free on Poisson-disk, uniform random, jittered and anisotropic
+# samplings and on the Fibonacci sphere (tests/test_estimation.py).
+COVER_K = 10
+COVER_DIRECTIONS = 16
+COVER_MARGIN = 1.2
+COVER_CAP = 1.0
+COVER_GLOBAL_CAP = 4.0
+
+# Surface fit (the core's FitOptions, where the measurements behind these are). FIT_PASSES fits,
+# each on the previous one's output (planes, then a quadric), over at least FIT_MIN_SUPPORT
+# points, reweighted FIT_ROBUST_PASSES times with Welsch weights FIT_ROBUST_WIDTH RMS residuals
+# wide; then a point is dropped when a kept one lies within FIT_THIN x its spacing in its own
+# scan.
+FIT_MIN_SUPPORT = 16
+FIT_PASSES = 2
+FIT_ROBUST_PASSES = 1
+FIT_ROBUST_WIDTH = 2.0
+FIT_THIN = 0.75
+
+
+def _core():
+    from . import _core as core
+
+    return core
+
+
+def _points(value, name: str = "points", minimum: int = 1) -> np.ndarray:
+    """(n, 3) finite float64, C-contiguous, with at least ``minimum`` rows."""
+    from .cloud import _rows3
+
+    pts = np.ascontiguousarray(_rows3(name, value, None), dtype=np.float64)
+    if len(pts) < minimum:
+        raise InputError(f"{name}: has {len(pts)} point(s), need at least {minimum}")
+    return pts
+
+
+def _normals(value, n: int) -> np.ndarray:
+    from .cloud import _validate_normals
+
+    return np.ascontiguousarray(_validate_normals(value, n), dtype=np.float32)
+
+
+def _viewpoints(value, n: int):
+    if value is None:
+        return None
+    from .cloud import _validate_viewpoints
+
+    return _validate_viewpoints(value, n)
+
+
+def _up(value):
+    if value is None:
+        return None
+    from .cloud import _unit_vector
+
+    return tuple(float(v) for v in _unit_vector("up", value))
+
+
+def _orient(k: int | None = None):
+    """The orientation settings the core takes: (neighbours, edge-length weight, margin)."""
+    return (ORIENT_K if k is None else k, ORIENT_DISTANCE_WEIGHT, OUTWARD_UNDECIDED_MARGIN)
+
+
+def _count(name: str, value, lo: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+        raise InputError(f"{name}: expected an integer >= {lo}, got {value!r}")
+    return int(value)
+
+
+def _threads(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise InputError(f"threads: expected an integer >= 0 (0: all cores), got {value!r}")
+    return int(value)
+
+
+def _distinct(points: np.ndarray, what: str) -> None:
+    if not np.ptp(points, axis=0).any():
+        raise InputError(f"{what}: cannot be estimated, all {len(points)} points coincide")
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def knn(points, k: int, *, threads: int = 0):
+    """The ``k`` nearest neighbours of every point, the point itself excluded.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        Finite positions.
+    k : int
+        Neighbours per point, >= 1; clamped to n - 1.
+    threads : int
+        Worker threads, 0 for all cores. Results do not depend on it.
+
+    Returns
+    -------
+    dist : (n, min(k, n - 1)) float64
+        Euclidean distances, ascending per row (ties by index).
+    index : (n, min(k, n - 1)) int64
+        Neighbour indices. Exact duplicates of a point are its neighbours at distance 0.
+    """
+    pts = _points(points)
+    dist, idx = _core().knn(pts, _count("k", k, 1), _threads(threads))
+    return dist, idx.astype(np.int64)
+
+
+def estimate_normals(
+    points,
+    *,
+    k: int | None = None,
+    viewpoints=None,
+    up=None,
+    threads: int = 0,
+    details: bool = False,
+):
+    """Unit normals of raw points, consistently oriented.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        Positions, n >= 3, not all on one line.
+    k : int, optional
+        A fixed neighbourhood size (the point included). By default the size is chosen per point
+        between :data:`NORMAL_K_MIN` and :data:`NORMAL_K_MAX` from the local noise and sampling.
+    viewpoints : (3,) or (n, 3) array_like, optional
+        Scanner position(s): each normal is flipped to face its viewpoint. Otherwise normals are
+        oriented along a minimum spanning tree (see :func:`orient_normals`).
+    up : (3,) array_like, optional
+        Tie-break for open, flat parts without viewpoints.
+    threads : int
+        Worker threads, 0 for all cores; results do not depend on it.
+    details : bool
+        Also return a dict: ``support`` ((n,) int, neighbourhood size used), ``spread`` ((n,)
+        float, RMS distance of that neighbourhood from its plane), ``borrowed`` (points on a
+        line or a stack of duplicates, which took the normal of their nearest neighbour that
+        has one) and ``arbitrary`` (such points with no such neighbour: a direction
+        perpendicular to their line).
+
+    Returns
+    -------
+    normals : (n, 3) float32
+        Unit normals, never NaN.
+    """
+    pts = _points(points)
+    n = len(pts)
+    if n < 3:
+        raise InputError(
+            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
+        )
+    _distinct(pts, "normals")
+    if k is None:
+        k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
+    else:
+        k_min = k_max = max(3, _count("k", k, 3))
+    out = _core().estimate_normals(
+        pts, _viewpoints(viewpoints, n), _up(up), min(k_min, n), min(k_max, n),
+        NORMAL_CONFIDENCE, _orient(), _threads(threads),
+    )
+    normals = out.pop("normals")
+    if details:
+        return normals, out
+    return normals
+
+
+def orient_normals(points, normals, *, viewpoints=None, up=None, k: int = ORIENT_K,
+                   threads: int = 0) -> np.ndarray:
+    """Flip normals so that they face their scanner, or agree with their neighbours.
+
+    With ``viewpoints``, each normal is flipped to face its viewpoint. Without, signs propagate
+    along a minimum spanning tree of the ``k``-nearest-neighbour graph with edge cost
+    ``1 - |n_i . n_j| + ORIENT_DISTANCE_WEIGHT * d_ij / median(d)`` (Hoppe et al. 1992); each
+    connected part then gets the sign under which most of its normals point away from its
+    centroid, or, when that vote is undecided (an open, flat patch) and ``up`` is given, faces
+    ``up``.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+    normals : (n, 3) array_like
+        Unit (or non-zero) normals of any sign.
+    viewpoints : (3,) or (n, 3) array_like, optional
+    up : (3,) array_like, optional
+    k : int
+        Neighbours linked per point.
+    threads : int
+
+    Returns
+    -------
+    normals : (n, 3) float64
+        The same directions (normalised), flipped where needed.
+    """
+    pts = _points(points)
+    nrm = _normals(normals, len(pts))
+    out, _ = _core().orient_normals(pts, nrm, _viewpoints(viewpoints, len(pts)), _up(up),
+                                    _orient(_count("k", k, 1)), _threads(threads))
+    return out.astype(np.float64)
+
+
+def estimate_radii(points, *, k: int = RADIUS_K, factor: float = RADIUS_FACTOR,
+                   threads: int = 0) -> np.ndarray:
+    """Surfel radii from local spacing: ``r_i = factor * d_k(i)``.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+    k : int
+        Which neighbour's distance measures the spacing (itself not counted), clamped to n - 1.
+    factor : float
+        See :data:`RADIUS_FACTOR`.
+
+    Returns
+    -------
+    radii : (n,) float32
+        Positive radii. Duplicated points get the radius their position has in the cloud
+        without duplicates (so stacks of coincident points never give d_k = 0).
+    """
+    pts = _points(points)
+    n = len(pts)
+    if n < 2:
+        raise InputError("radii: cannot be estimated from a single point; pass radii")
+    k = _count("k", k, 1)
+    dk = knn(pts, min(k, n - 1), threads=threads)[0][:, -1]
+    if not np.all(dk > 0):
+        # stacks of duplicates: measure the spacing among distinct positions, so duplicates get
+        # the radius of the position they share (a positive floor from the local spacing)
+        uniq, inverse = np.unique(pts, axis=0, return_inverse=True)
+        if len(uniq) == 1:
+            raise InputError(f"radii: cannot be estimated, all {n} points coincide; pass radii")
+        dk = knn(uniq, min(k, len(uniq) - 1), threads=threads)[0][:, -1][inverse.reshape(-1)]
+    out = (factor * dk).astype(np.float32)
+    # float32 rounding must not produce 0 for tiny (but positive) spacings
+    return np.maximum(out, np.finfo(np.float32).tiny)
+
+
+def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_MARGIN,
+                   cap: float = COVER_CAP, threads: int = 0) -> np.ndarray:
+    """Per-point radii just large enough to cover the surface: margin x the Voronoi-cell radius.
+
+    For each point, its ``k`` nearest neighbours are projected on its tangent plane; along each
+    of COVER_DIRECTIONS directions the cell ends at the nearest perpendicular bisector. The
+    cell's radius is the largest such distance over the directions that have a bisector
+    (directions without one face an open boundary, which needs no cover beyond the samples).
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+    normals : (n, 3) array_like, unit normals
+    k, margin, cap : see :data:`COVER_K`, :data:`COVER_MARGIN`, :data:`COVER_CAP`
+    threads : int
+
+    Returns
+    -------
+    radii : (n,) float32, positive
+    """
+    pts = _points(points)
+    n = len(pts)
+    if n < 2:
+        raise InputError("radii: cannot be estimated from a single point; pass radii")
+    _distinct(pts, "radii")
+    nrm = _normals(normals, n)
+    out = _core().coverage_radii(pts, nrm, min(_count("k", k, 1), n - 1), COVER_DIRECTIONS,
+                                 float(margin), float(cap), COVER_GLOBAL_CAP, _threads(threads))
+    bad = ~(out > 0)
+    if bad.any():  # stacks of duplicates: the spacing-based estimate knows how to handle them
+        out[bad] = estimate_radii(pts, threads=threads)[bad]
+    return out
+
+
+@dataclass
+class SurfaceFit:
+    """What :func:`fit_surface` produced.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+        Every input point moved onto the fitted surface (or left where it was, see ``unmoved``).
+    normals : (n, 3) float32
+        Unit normals of the fitted surface, oriented like the input's (or estimated) normals.
+    keep : (n,) bool
+        The points that add to the surface; the others lie within the spacing of a kept point
+        where scans overlap.
+    shift : (n,) float32
+        How far each point moved.
+    unmoved : int
+        Points whose fit failed (too few or degenerate neighbours) or asked for a move beyond
+        their neighbourhood: left in place with their input normal.
+    spacing : float
+        Median distance to the nearest point of the same scan before the fit, the unit of
+        ``summary``.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    keep: np.ndarray
+    shift: np.ndarray
+    unmoved: int
+    spacing: float
+
+    @property
+    def kept(self) -> int:
+        return int(self.keep.sum())
+
+    def summary(self) -> str:
+        """One line: points kept and how far the points moved."""
+        n = len(self.keep)
+        mean = float(self.shift.mean()) if n else 0.0
+        rel = f" ({mean / self.spacing:.2f} x the point spacing)" if self.spacing > 0 else ""
+        text = (f"surface fit: kept {self.kept} of {n} points ({100.0 * self.kept / max(n, 1):.1f}%), "
+                f"mean shift {mean:.3g}{rel}")
+        if self.unmoved:
+            text += f"; {self.unmoved} points not moved (degenerate neighbourhood)"
+        return text
+
+
+def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=None,
+                thin: float = FIT_THIN, quadric: bool = True, passes: int = FIT_PASSES,
+                robust_passes: int = FIT_ROBUST_PASSES, threads: int = 0) -> SurfaceFit:
+    """Move points onto a robust local fit of the surface across all scans; mark the redundant.
+
+    Each point's neighbourhood (at least :data:`FIT_MIN_SUPPORT` points, more where the normal
+    estimate chose more) is fitted, in the frame of the point's normal, by a weighted plane,
+    reweighted against outliers; the point moves onto it and takes its normal. ``passes`` fits
+    run in turn, each on the previous one's output; the last fits a height field
+    ``z = a + b x + c y + d x^2 + e xy + f y^2`` (``quadric=False``: a plane again), which does
+    not pull curved parts inward. Then, visiting the points seen most head-on first (by their
+    viewpoints), a point is dropped when a kept point lies within ``thin`` x its spacing in its
+    own scan: where scans overlap about one layer remains, a single scan keeps all its points.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        n >= 3, not all on one line.
+    normals : (n, 3) array_like, optional
+        Oriented normals; estimated (and oriented) when omitted.
+    viewpoints : (3,) or (n, 3) array_like, optional
+        Scanner positions: orient estimated normals, and rank points for thinning.
+    scan_index : (n,) array_like of int, optional
+        Which scan each point came from. Without it, points with the same viewpoint form one
+        scan (or all points, without viewpoints).
+    up : (3,) array_like, optional
+        Orientation tie-break (see :func:`orient_normals`).
+    thin : float
+        See above; 0 keeps every point.
+    quadric : bool
+    passes : int
+        >= 1 (see :data:`FIT_PASSES`).
+    robust_passes : int
+        Reweightings per fit, >= 0.
+    threads : int
+
+    Returns
+    -------
+    SurfaceFit
+    """
+    pts = _points(points)
+    n = len(pts)
+    if n < 3:
+        raise InputError(f"surface fit: needs at least 3 points, got {n}")
+    _distinct(pts, "surface fit")
+    nrm = None if normals is None else _normals(normals, n)
+    vp = _viewpoints(viewpoints, n)
+    group = None
+    if scan_index is not None:
+        from .cloud import _validate_per_point
+
+        group = _validate_per_point("scan_index", scan_index, n, np.int32)
+    elif vp is not None and vp.ndim == 2:
+        group = np.unique(vp, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+    if not (np.isfinite(thin) and 0.0 <= thin <= 2.0):
+        raise InputError(f"thin: expected a number in [0, 2], got {thin!r}")
+    out = _core().fit_surface(
+        pts, nrm, vp, group, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
+        NORMAL_CONFIDENCE, _orient(), FIT_MIN_SUPPORT, bool(quadric), _count("passes", passes, 1),
+        _count("robust_passes", robust_passes, 0),
+        FIT_ROBUST_WIDTH, float(thin), _threads(threads),
+    )
+    return SurfaceFit(points=out["points"], normals=out["normals"], keep=out["keep"].astype(bool),
+                      shift=out["shift"], unmoved=int(out["unmoved"]),
+                      spacing=float(np.median(out["spacing"])))

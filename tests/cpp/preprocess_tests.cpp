@@ -1,0 +1,205 @@
+// pointviz — tests of the preprocessing core (knn.h, normals.h, orient.h, radii.h,
+// surface_fit.h) on their own, run under ASan + UBSan by `make sanitize`. Neighbours are checked against brute force over all points; every
+// step must give the same result on any thread count, stop with Cancelled once cancelled, and
+// give finite output on degenerate input (duplicates, a line, fewer points than neighbours).
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <numeric>
+#include <random>
+#include <vector>
+
+#include "pointviz/preprocess.h"
+#include "check.h"
+
+using namespace pointviz;
+
+namespace {
+
+std::vector<double> sphere_points(size_t n, unsigned seed, double noise = 0.0) {
+    std::mt19937 g(seed);
+    std::normal_distribution<double> N;
+    std::vector<double> p(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+        double x = N(g), y = N(g), z = N(g), l = std::sqrt(x * x + y * y + z * z);
+        double r = 1.0 + noise * N(g);
+        p[3 * i] = r * x / l, p[3 * i + 1] = r * y / l, p[3 * i + 2] = r * z / l;
+    }
+    return p;
+}
+
+double d2(const double *a, const double *b) {
+    return (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) +
+           (a[2] - b[2]) * (a[2] - b[2]);
+}
+
+/// Brute force: the k nearest other points by (distance, index).
+std::vector<uint32_t> brute_row(const std::vector<double> &p, size_t i, uint32_t k) {
+    size_t n = p.size() / 3;
+    std::vector<uint32_t> idx;
+    for (size_t j = 0; j < n; ++j)
+        if (j != i) idx.push_back(uint32_t(j));
+    std::sort(idx.begin(), idx.end(), [&](uint32_t a, uint32_t b) {
+        double da = d2(&p[3 * i], &p[3 * size_t(a)]), db = d2(&p[3 * i], &p[3 * size_t(b)]);
+        return da < db || (da == db && a < b);
+    });
+    idx.resize(std::min<size_t>(k, idx.size()));
+    return idx;
+}
+
+void test_knn_matches_brute_force() {
+    for (unsigned seed = 0; seed < 3; ++seed) {
+        std::vector<double> p = sphere_points(700, seed);
+        // duplicates and a grid's equal distances
+        for (int c = 0; c < 20; ++c) p.insert(p.end(), p.begin(), p.begin() + 3);
+        for (int x = 0; x < 5; ++x)
+            for (int y = 0; y < 5; ++y) p.insert(p.end(), {3.0 + x, 3.0 + y, 0.0});
+        size_t n = p.size() / 3;
+        for (uint32_t k : {1u, 8u, 33u}) {
+            KnnTree tree(p.data(), n, 2);
+            NeighbourTable t = knn_all(tree, p.data(), k, 3);
+            size_t bad = 0;
+            for (size_t i = 0; i < n; ++i) {
+                std::vector<uint32_t> want = brute_row(p, i, k);
+                bad += !std::equal(want.begin(), want.end(), t.row(i));
+            }
+            CHECK(bad == 0, "seed %u k %u: %zu rows differ from brute force", seed, k, bad);
+        }
+    }
+}
+
+void test_tiny_clouds() {
+    double one[3] = {1, 2, 3};
+    KnnTree t1(one, 1);
+    NeighbourTable a = knn_all(t1, one, 8, 1);
+    CHECK(a.k == 0 && a.index.empty(), "one point: %u columns", a.k);
+    double two[6] = {0, 0, 0, 1, 0, 0};
+    KnnTree t2(two, 2);
+    NeighbourTable b = knn_all(t2, two, 8, 1);
+    CHECK(b.k == 1 && b.row(0)[0] == 1 && b.row(1)[0] == 0, "two points: k %u", b.k);
+    KnnTree t0(nullptr, 0);
+    CHECK(t0.size() == 0, "empty tree");
+}
+
+void test_identical_for_any_thread_count() {
+    std::vector<double> p = sphere_points(3000, 7, 0.01);
+    PointsView v;
+    v.points = p.data();
+    v.n = p.size() / 3;
+    double centre[3] = {0, 0, 0};
+    std::vector<float> ref_n, ref_r;
+    std::vector<double> ref_p;
+    for (int threads : {1, 2, 4}) {
+        Progress pr;
+        NormalOptions no;
+        no.threads = threads;
+        OrientOptions oo;
+        NormalsOutput nr = normals_points(v, no, oo, pr);
+        CoverOptions co;
+        co.threads = threads;
+        std::vector<float> r = radii_points(v, nr.est.normals.data(), 10, co, pr);
+        PointsView vv = v;
+        vv.viewpoints = centre;
+        vv.n_viewpoints = 1;
+        FitOptions fo;
+        fo.threads = threads;
+        FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr);
+        if (threads == 1) {
+            ref_n = nr.est.normals, ref_r = r, ref_p = f.fit.points;
+            size_t outward = 0;
+            for (size_t i = 0; i < v.n; ++i)
+                outward += ref_n[3 * i] * p[3 * i] + ref_n[3 * i + 1] * p[3 * i + 1] +
+                               ref_n[3 * i + 2] * p[3 * i + 2] > 0;
+            CHECK(outward == v.n, "MST orientation: %zu of %zu outward", outward, v.n);
+            bool finite = std::all_of(r.begin(), r.end(), [](float x) { return x > 0 && std::isfinite(x); });
+            CHECK(finite, "radii must be positive and finite");
+        } else {
+            CHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
+            CHECK(r == ref_r, "radii differ at %d threads", threads);
+            CHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
+        }
+    }
+}
+
+void test_cancel_stops_every_step() {
+    std::vector<double> p = sphere_points(5000, 3);
+    PointsView v;
+    v.points = p.data();
+    v.n = p.size() / 3;
+    auto cancelled = [&](auto &&fn) {
+        Progress pr;
+        pr.cancel = true;
+        try {
+            fn(pr);
+        } catch (const Cancelled &) {
+            return true;
+        }
+        return false;
+    };
+    std::vector<float> nrm(3 * v.n, 0.f);
+    for (size_t i = 0; i < v.n; ++i) nrm[3 * i + 2] = 1.f;
+    CHECK(cancelled([&](Progress &pr) { knn_points(v, 8, 2, pr); }), "knn");
+    CHECK(cancelled([&](Progress &pr) { normals_points(v, NormalOptions{}, OrientOptions{}, pr); }),
+           "normals");
+    CHECK(cancelled([&](Progress &pr) { radii_points(v, nrm.data(), 10, CoverOptions{}, pr); }),
+           "radii");
+    CHECK(cancelled([&](Progress &pr) {
+               fit_points(v, nrm.data(), NormalOptions{}, OrientOptions{}, FitOptions{}, pr);
+           }), "fit");
+    // and progress is counted when not cancelled
+    Progress pr;
+    knn_points(v, 8, 2, pr);
+    CHECK(pr.done.load() == pr.total.load() && pr.total.load() == v.n, "progress %llu of %llu",
+           (unsigned long long)pr.done.load(), (unsigned long long)pr.total.load());
+}
+
+void test_degenerate_neighbourhoods_give_finite_output() {
+    // a line, stacks of duplicates, and fewer points than neighbours
+    std::vector<double> line;
+    for (int i = 0; i < 40; ++i) line.insert(line.end(), {i * 0.1, 0.0, 0.0});
+    std::vector<double> dup;
+    for (int i = 0; i < 30; ++i) dup.insert(dup.end(), {0.5, 0.5, 0.5});
+    for (int i = 0; i < 30; ++i) dup.insert(dup.end(), {double(i % 6), double(i / 6), 0.0});
+    std::vector<double> four = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0};
+    for (const std::vector<double> *p : {&line, &dup, &four}) {
+        PointsView v;
+        v.points = p->data();
+        v.n = p->size() / 3;
+        Progress pr;
+        NormalsOutput nr = normals_points(v, NormalOptions{}, OrientOptions{}, pr);
+        bool unit = true;
+        for (size_t i = 0; i < v.n; ++i) {
+            const float *n = &nr.est.normals[3 * i];
+            double l = std::sqrt(double(n[0]) * n[0] + double(n[1]) * n[1] + double(n[2]) * n[2]);
+            unit = unit && std::fabs(l - 1.0) < 1e-5;
+        }
+        CHECK(unit, "%zu points: every normal must be a finite unit vector", v.n);
+        std::vector<float> r = radii_points(v, nr.est.normals.data(), 10, CoverOptions{}, pr);
+        bool ok = std::all_of(r.begin(), r.end(), [](float x) { return std::isfinite(x) && x >= 0; });
+        CHECK(ok, "%zu points: radii finite (0 marks a stack of duplicates)", v.n);
+        FitOutput f = fit_points(v, nr.est.normals.data(), NormalOptions{}, OrientOptions{},
+                                 FitOptions{}, pr);
+        bool fin = std::all_of(f.fit.points.begin(), f.fit.points.end(),
+                               [](double x) { return std::isfinite(x); });
+        CHECK(fin, "%zu points: fitted positions finite", v.n);
+    }
+    PointsView v;
+    v.points = line.data();
+    v.n = line.size() / 3;
+    Progress pr;
+    NormalsOutput nr = normals_points(v, NormalOptions{}, OrientOptions{}, pr);
+    CHECK(nr.est.arbitrary == v.n, "a line: %zu of %zu normals arbitrary", nr.est.arbitrary, v.n);
+}
+
+}  // namespace
+
+int main() {
+    test_knn_matches_brute_force();
+    test_tiny_clouds();
+    test_identical_for_any_thread_count();
+    test_cancel_stops_every_step();
+    test_degenerate_neighbourhoods_give_finite_output();
+    std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
+                pointviz_tests::g_failures);
+    return pointviz_tests::g_failures == 0 ? 0 : 1;
+}
