@@ -31,6 +31,12 @@ VARIANTS = {
 
 INTERPOLATIONS = ("none", "paper", "smooth")
 
+#: Traversals of the same tree: the 4-wide collapsed tree (default, faster) or the binary tree.
+#: Both find the same disks; only with level of detail may a ray's blend differ, because the
+#: disks of a node drawn at a coarser level reach outside its bound, so which of them a ray
+#: meets depends on the order in which the two traversals prune.
+TRAVERSALS = ("wide", "binary")
+
 #: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
 DEFAULT_INTERPOLATION = "smooth"
 
@@ -118,6 +124,9 @@ class SurfelScene:
     lod_criterion : {"size", "deviation"}
         When LoD stops descending: the paper's projected sphere size, or the projected deviation
         of the node from its mean plane (flat regions stop earlier).
+    traversal : {"wide", "binary"}
+        Which traversal answers queries: the 4-wide tree collapsed from the binary one
+        (default), or the binary QSplat tree itself (the paper's).
     threads : int, optional
         Worker threads for the build and queries; default all cores. Results never depend on it.
     origin : (3,) float, optional
@@ -128,7 +137,7 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
-                 lod_criterion: str = "size", slabs: bool = True,
+                 lod_criterion: str = "size", slabs: bool = True, traversal: str = "wide",
                  threads: int | None = None, origin=None):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
@@ -142,6 +151,8 @@ class SurfelScene:
             raise InputError(f"window: must be a non-negative number, got {window!r}")
         if lod_criterion not in ("size", "deviation"):
             raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
+        if traversal not in TRAVERSALS:
+            raise InputError(f"traversal: expected one of {TRAVERSALS}, got {traversal!r}")
         if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 31):
             raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
         self.threads = _check_threads(threads)
@@ -150,7 +161,7 @@ class SurfelScene:
         self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
                                  box_depth=box_depth, lod_pixels=lod_pixels, window=window,
                                  leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
-                                 threads=threads, origin=origin)
+                                 traversal=traversal, threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -197,6 +208,7 @@ class SurfelScene:
         self._options.interpolation = getattr(_core.Interpolation, interpolation)
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
+        self._options.wide = traversal == "wide"
         self.last_stats: dict = {}
 
     def __reduce__(self):
@@ -227,12 +239,16 @@ class SurfelScene:
         return self._tree.box_depth
 
     @property
+    def traversal(self) -> str:
+        return "wide" if self._options.wide else "binary"
+
+    @property
     def lod_pixels(self) -> float:
         return self._options.lod_pixels
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by the core: surfels, nodes, boxes and the index permutation."""
+        """Bytes held by the core: surfels, binary and wide nodes, boxes and the index permutation."""
         return int(self._tree.memory_bytes)
 
     @property
@@ -268,7 +284,7 @@ class SurfelScene:
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs"):
+                  "lod_criterion", "lod_max_extent", "slabs", "wide"):
             setattr(o, k, getattr(self._options, k))
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):

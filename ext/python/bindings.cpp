@@ -274,7 +274,8 @@ NB_MODULE(_core, m) {
         .def_rw("window", &TraceOptions::window)
         .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
-        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent);
+        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
+        .def_rw("wide", &TraceOptions::wide);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())

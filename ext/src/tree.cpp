@@ -205,12 +205,14 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
     boxes.resize(level_start_[box_depth_]);
     boxes.shrink_to_fit();
     boxes_ = std::move(boxes);
+    collapse_tree(nodes_, boxes_, box_depth_, wide_, wide_boxes_);
     build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 size_t SurfelTree::memory_bytes() const {
     return surfels_.size() * sizeof(Surfel) + nodes_.size() * sizeof(Node) +
-           boxes_.size() * sizeof(Box) + order_.size() * sizeof(uint32_t) +
+           boxes_.size() * sizeof(Box) + wide_.size() * sizeof(WideNode) +
+           wide_boxes_.size() * sizeof(WideBoxes) + order_.size() * sizeof(uint32_t) +
            level_start_.size() * sizeof(uint32_t);
 }
 

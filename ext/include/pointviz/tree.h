@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "pointviz/node.h"
+#include "pointviz/wide_node.h"
 
 namespace pointviz {
 
@@ -36,6 +37,10 @@ public:
     const std::vector<Node> &nodes() const { return nodes_; }
     /// Boxes of the nodes [0, boxes().size()): every node shallower than box_depth.
     const std::vector<Box> &boxes() const { return boxes_; }
+    /// The same hierarchy collapsed into 4-wide nodes (wide_node.h); empty when the root is a leaf.
+    const std::vector<WideNode> &wide() const { return wide_; }
+    /// Lane boxes of the wide nodes [0, wide_boxes().size()).
+    const std::vector<WideBoxes> &wide_boxes() const { return wide_boxes_; }
     /// order()[k] is the input index of the surfel stored at position k.
     const std::vector<uint32_t> &order() const { return order_; }
     /// First node index of each level; level_start().back() == nodes().size().
@@ -50,6 +55,8 @@ private:
     std::vector<Surfel> surfels_;
     std::vector<Node> nodes_;
     std::vector<Box> boxes_;
+    std::vector<WideNode> wide_;
+    std::vector<WideBoxes> wide_boxes_;
     std::vector<uint32_t> order_;
     std::vector<uint32_t> level_start_;
     double origin_[3];
