@@ -51,6 +51,22 @@ AUTO_BOX_BYTES_PER_SURFEL = 1.5
 
 _ALL_LEVELS = 255
 
+#: Instruction sets of the traversal kernels, best last ("auto": the best this CPU runs).
+ISAS = ("auto", "base", "sse42", "avx2", "avx512")
+
+
+def available_isas() -> tuple[str, ...]:
+    """The instruction sets whose kernels this build has and this CPU runs (always "base").
+
+    Every one gives the same results, bit for bit; they differ only in speed.
+    """
+    return tuple(name for name in ISAS[1:] if _core.isa_available(getattr(_core.Isa, name)))
+
+
+def best_isa() -> str:
+    """The instruction set ``isa="auto"`` runs."""
+    return _core.best_isa().name
+
 #: Most surfels in one tree (27 bits of index in the 32-byte node).
 MAX_SURFELS = 2**27 - 1
 
@@ -127,8 +143,15 @@ class SurfelScene:
     traversal : {"wide", "binary"}
         Which traversal answers queries: the 4-wide tree collapsed from the binary one
         (default), or the binary QSplat tree itself (the paper's).
+    isa : {"auto", "base", "sse42", "avx2", "avx512"}
+        Instruction set of the traversal kernels; "auto" (default) picks the best this CPU runs
+        (``best_isa()``). Results never depend on it.
     threads : int, optional
         Worker threads for the build and queries; default all cores. Results never depend on it.
+    keep_cloud : bool
+        Keep a reference to ``cloud`` (default). ``False`` lets its arrays be freed once the
+        tree is built (the tree holds its own compact copy), for the largest clouds; such a
+        scene cannot be pickled.
     origin : (3,) float, optional
         Local frame origin; default the cloud's bounding-box centre (keeps float32 precise for
         georeferenced clouds).
@@ -138,7 +161,8 @@ class SurfelScene:
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
                  lod_criterion: str = "size", slabs: bool = True, traversal: str = "wide",
-                 threads: int | None = None, origin=None):
+                 isa: str = "auto", threads: int | None = None, origin=None,
+                 keep_cloud: bool = True):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
         interpolation = DEFAULT_INTERPOLATION if interpolation is None else interpolation
@@ -153,6 +177,11 @@ class SurfelScene:
             raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
         if traversal not in TRAVERSALS:
             raise InputError(f"traversal: expected one of {TRAVERSALS}, got {traversal!r}")
+        if isa not in ISAS:
+            raise InputError(f"isa: expected one of {ISAS}, got {isa!r}")
+        if isa != "auto" and isa not in available_isas():
+            raise InputError(f"isa: {isa!r} kernels do not run here (available: "
+                             f"{', '.join(available_isas())})")
         if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 31):
             raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
         self.threads = _check_threads(threads)
@@ -161,7 +190,7 @@ class SurfelScene:
         self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
                                  box_depth=box_depth, lod_pixels=lod_pixels, window=window,
                                  leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
-                                 traversal=traversal, threads=threads, origin=origin)
+                                 traversal=traversal, isa=isa, threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -199,6 +228,9 @@ class SurfelScene:
             box_depth=int(min(bd, _ALL_LEVELS)),
             threads=self.threads or 0,
         )
+        if not keep_cloud:
+            self.cloud = None
+            del points, colors
         self._options = _core.TraceOptions()
         self._options.lod = knobs["lod"]
         self._options.cull = knobs["cull"]
@@ -209,11 +241,14 @@ class SurfelScene:
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
         self._options.wide = traversal == "wide"
+        self._options.isa = getattr(_core.Isa, isa)
         self.last_stats: dict = {}
 
     def __reduce__(self):
         """Pickle as the cloud and the settings: the tree is rebuilt (deterministically) on load,
         so a scene sent to another process traces exactly the same hits."""
+        if self.cloud is None:
+            raise InputError("SurfelScene(keep_cloud=False) cannot be pickled: its cloud is gone")
         kwargs = dict(self._init_kwargs)
         kwargs["origin"] = self.origin  # the resolved origin, so the local frame is identical
         return (_rebuild, (self.cloud, kwargs))
@@ -284,7 +319,7 @@ class SurfelScene:
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "wide"):
+                  "lod_criterion", "lod_max_extent", "slabs", "wide", "isa"):
             setattr(o, k, getattr(self._options, k))
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):

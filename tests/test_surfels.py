@@ -258,6 +258,36 @@ def test_wide_traversal_with_lod_matches_binary(rng, scene_name):
         assert ws["nodes_visited"] < 0.8 * bs["nodes_visited"]
 
 
+def test_every_instruction_set_gives_the_base_results(rng):
+    from pointviz import Camera
+    from pointviz.surfels import available_isas, best_isa
+
+    isas = available_isas()
+    assert isas[0] == "base" and best_isa() in isas
+    cloud = shapes.torus(30000, major=1.0, minor=0.3)
+    cam = Camera.fit(cloud, fov_deg=30, width=64, height=64)
+    random = rays_at_sphere(rng, 3000, spread=2.5)
+    for traversal in TRAVERSALS:
+        scenes = {isa: SurfelScene(cloud, traversal=traversal, isa=isa) for isa in isas}
+        for rays, pixel_angle in ((cam.rays(), 4 * cam.pixel_angle), (random, None)):
+            ref = scenes["base"].cast_rays(rays, pixel_angle=pixel_angle)
+            ref_stats = dict(scenes["base"].last_stats)
+            t_max = np.where(np.isfinite(ref["t_hit"]), 0.9 * ref["t_hit"], 10.0)
+            ref_occ = scenes["base"].occluded(rays, t_max)
+            assert np.isfinite(ref["t_hit"]).mean() > 0.2
+            for isa in isas[1:]:
+                out = scenes[isa].cast_rays(rays, pixel_angle=pixel_angle)
+                for key in ref:
+                    np.testing.assert_array_equal(out[key], ref[key], err_msg=f"{isa} {key}")
+                assert dict(scenes[isa].last_stats) == ref_stats, isa
+                np.testing.assert_array_equal(scenes[isa].occluded(rays, t_max), ref_occ)
+
+
+def test_unavailable_instruction_set_is_named(sphere20k):
+    with pytest.raises(InputError, match="isa: expected one of"):
+        SurfelScene(sphere20k, isa="neon")
+
+
 def test_wide_traversal_of_a_single_leaf(rng):
     # the root is a leaf: no wide nodes, the wide traversal falls back to the leaf test
     cloud = PointCloud(rng.uniform(-0.1, 0.1, (5, 3)), normals=np.tile([0, 0, 1.0], (5, 1)),

@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
@@ -260,6 +261,15 @@ NB_MODULE(_core, m) {
         .value("paper", Interpolation::Paper)
         .value("smooth", Interpolation::Smooth);
 
+    nb::enum_<Isa>(m, "Isa")
+        .value("auto", Isa::Auto)
+        .value("base", Isa::Base)
+        .value("sse42", Isa::Sse42)
+        .value("avx2", Isa::Avx2)
+        .value("avx512", Isa::Avx512);
+    m.def("isa_available", &isa_available, "isa"_a);
+    m.def("best_isa", &best_isa);
+
     nb::enum_<LodCriterion>(m, "LodCriterion")
         .value("size", LodCriterion::Size)
         .value("deviation", LodCriterion::Deviation);
@@ -275,7 +285,8 @@ NB_MODULE(_core, m) {
         .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
         .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
-        .def_rw("wide", &TraceOptions::wide);
+        .def_rw("wide", &TraceOptions::wide)
+        .def_rw("isa", &TraceOptions::isa);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
@@ -526,6 +527,113 @@ void test_render() {
     CHECK(render(scene, cam, set, fb4, s4, no) && std::isfinite(fb4.color[0]), "1x1 render");
 }
 
+/// Every output of a closest-hit batch, for comparing two runs bit for bit.
+struct CastRun {
+    std::vector<float> t, normal, color, radius;
+    std::vector<int32_t> index;
+    std::vector<uint8_t> count, occluded;
+    BatchStats stats;
+
+    CastRun(const SurfelTree &tree, const std::vector<double> &rays, const TraceOptions &o,
+            float pixel_angle) {
+        const size_t n = rays.size() / 6;
+        t.resize(n), normal.resize(3 * n), color.resize(3 * n), radius.resize(n), index.resize(n);
+        count.resize(n), occluded.resize(n);
+        CastOutput out;
+        out.t = t.data(), out.normal = normal.data(), out.color = color.data();
+        out.radius = radius.data(), out.index = index.data(), out.count = count.data();
+        cast(tree, rays.data(), n, o, pixel_angle, 2, out, &stats);
+        // shadow rays' ends spread over the sphere's depth (rays start 4 radii away): a mix of
+        // blocked and free rays, the same for every run compared
+        std::vector<float> tmax(n);
+        for (size_t i = 0; i < n; ++i) tmax[i] = 2.5f + 0.25f * float(i % 12);
+        BatchStats occ_stats;
+        any_hits(tree, rays.data(), tmax.data(), n, o, 0.f, pixel_angle, 2, occluded.data(),
+                 &occ_stats);
+    }
+    /// Whether every output equals `o`'s bit for bit (NaN-free: misses are inf); names the
+    /// first that differs on stderr.
+    bool same(const CastRun &o) const {
+        const char *diff = t != o.t ? "t" : normal != o.normal ? "normal" : color != o.color ? "color"
+                         : radius != o.radius ? "radius" : index != o.index ? "index"
+                         : count != o.count ? "count" : occluded != o.occluded ? "occluded" : nullptr;
+        if (diff) std::fprintf(stderr, "  (first differing output: %s)\n", diff);
+        return diff == nullptr;
+    }
+    size_t hits() const {
+        size_t h = 0;
+        for (float v : t) h += std::isfinite(v);
+        return h;
+    }
+};
+
+void test_wide_traversal_equals_binary() {
+    const double zero[3] = {0, 0, 0};
+    for (int seed = 0; seed < 4; ++seed) {
+        std::mt19937_64 g(2000 + seed);
+        Cloud cl = random_sphere_cloud(g, seed < 2 ? 500 : 5000, 1.0, zero);
+        for (uint32_t leaf : {1u, 4u, 8u})
+            for (uint32_t bd : {0u, 4u, 255u}) {
+                auto tree = build(cl, leaf, bd);
+                auto rays = random_rays(g, 400, zero, 4.0, 1.2);
+                for (bool cull : {false, true})
+                    for (Interpolation interp : {Interpolation::None, Interpolation::Smooth}) {
+                        TraceOptions o;
+                        o.lod = false, o.cull = cull, o.interp = interp, o.box_depth = bd;
+                        o.wide = false;
+                        CastRun binary(*tree, rays, o, 0.f);
+                        o.wide = true;
+                        CastRun wide(*tree, rays, o, 0.f);
+                        // The nearest disk never depends on the traversal. The blend around it
+                        // can, rarely: its depth window is set by the nearest disk found so far,
+                        // which may widen when a nearer, larger disk turns up after a farther
+                        // one was left out (random normals and radii make that happen here).
+                        size_t same_t = 0;
+                        for (size_t i = 0; i < wide.t.size(); ++i) same_t += wide.t[i] == binary.t[i];
+                        if (interp == Interpolation::None)
+                            CHECK(wide.same(binary) && wide.hits() > 0,
+                                  "seed %d leaf %u box %u cull %d: wide != binary", seed, leaf, bd,
+                                  int(cull));
+                        else
+                            CHECK(wide.index == binary.index && wide.occluded == binary.occluded &&
+                                      same_t >= wide.t.size() * 98 / 100,
+                                  "seed %d leaf %u box %u cull %d: wide blend differs on %zu rays",
+                                  seed, leaf, bd, int(cull), wide.t.size() - same_t);
+                        CHECK(wide.stats.hits == binary.stats.hits &&
+                                  wide.stats.nodes < binary.stats.nodes,
+                              "seed %d leaf %u: stats %llu vs %llu nodes", seed, leaf,
+                              (unsigned long long)wide.stats.nodes,
+                              (unsigned long long)binary.stats.nodes);
+                    }
+            }
+    }
+}
+
+void test_every_isa_equals_base() {
+    const double zero[3] = {0, 0, 0};
+    std::mt19937_64 g(3000);
+    Cloud cl = random_sphere_cloud(g, 4000, 1.0, zero);
+    auto tree = build(cl, 8, 6);
+    auto rays = random_rays(g, 600, zero, 4.0, 1.2);
+    int tried = 0;
+    for (Isa isa : {Isa::Sse42, Isa::Avx2, Isa::Avx512}) {
+        if (!isa_available(isa)) continue;
+        ++tried;
+        for (bool wide : {false, true})
+            for (float pa : {0.f, 0.05f}) {
+                TraceOptions o;
+                o.wide = wide, o.box_depth = 6, o.isa = Isa::Base;
+                CastRun base(*tree, rays, o, pa);
+                o.isa = isa;
+                CastRun other(*tree, rays, o, pa);
+                CHECK(other.same(base) && base.hits() > 0, "%s (wide %d, pixel angle %g) != base",
+                      isa_name(isa), int(wide), double(pa));
+            }
+    }
+    std::printf("core_tests: instruction sets checked against base: %d (best: %s)\n", tried,
+                isa_name(best_isa()));
+}
+
 void test_empty_and_oversized_builds_throw() {
     SurfelArrays a;
     double origin[3] = {0, 0, 0};
@@ -545,6 +653,8 @@ int main() {
     test_duplicates();
     test_line_and_plane();
     test_random_clouds_match_brute_force();
+    test_wide_traversal_equals_binary();
+    test_every_isa_equals_base();
     test_offset_precision();
     test_scales();
     test_degenerate_rays_and_surfels();

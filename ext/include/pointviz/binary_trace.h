@@ -11,37 +11,12 @@
 #include <cstdint>
 
 #include "pointviz/leaf_simd.h"
+#include "pointviz/query.h"
 #include "pointviz/tree.h"
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 
-/// How the disks around a hit are combined (section 2.1).
-enum class Interpolation : uint8_t {
-    None = 0,    ///< the nearest disk alone (the baseline: disks stick out)
-    Paper = 1,   ///< weights |I - p_i|, as printed in the paper (Schaufler & Jensen's scheme)
-    Smooth = 2,  ///< weights (1 - (|I - p_i| / r_i)^2)^2: full at the centre, zero at the rim
-};
-
-/// When a node is small enough to stop descending (paper section 2.2.1 and its open question).
-enum class LodCriterion : uint8_t {
-    Size = 0,       ///< the paper's: the node's sphere diameter projects below lod_pixels
-    Deviation = 1,  ///< the node's deviation from its mean plane (diameter x sin of the normal
-                    ///< cone's half-angle) projects below lod_pixels: flat nodes stop earlier
-};
-
-/// Knobs of one traversal; the paper's variants are combinations of these.
-struct TraceOptions {
-    bool lod = true;          ///< stop at nodes smaller than lod_pixels footprints (needs ray.spread > 0)
-    float lod_pixels = 1.f;   ///< LoD threshold: sphere diameter in units of the ray footprint
-    bool cull = true;         ///< back-face culling with normal cones (closest-hit queries only)
-    uint32_t box_depth = 0;   ///< nodes shallower than this are bounded by boxes, the rest by spheres
-    bool slabs = true;        ///< intersect each sphere with its node's mean-plane slab (beyond the paper)
-    Interpolation interp = Interpolation::Smooth;
-    float window = 1.f;       ///< depth window, in radii of the nearest disk, measured along its normal
-    LodCriterion lod_criterion = LodCriterion::Size;
-    float lod_max_extent = 8.f;  ///< Deviation only: never stop at nodes wider than this many footprints
-    bool wide = true;         ///< traverse the 4-wide tree (false: the binary tree it was collapsed from)
-};
 
 /// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
 /// `radius` and `cone` are the node's sphere radius and cone sine (Node::cone()).
@@ -54,16 +29,6 @@ inline bool lod_stop(float radius, float cone, const Ray &ray, float t2, const T
     const float spread = std::min(1.f, std::max(cone, kFlatFloor));
     return size * spread <= fp && size <= opt.lod_max_extent * fp;
 }
-
-/// What a closest-hit query returns.
-struct SurfaceHit {
-    float t = kInf;        ///< blended ray parameter; kInf on a miss
-    Vec3 n;                ///< blended unit normal (as stored: may face away from the ray)
-    Vec3 color;            ///< blended colour in [0, 1]
-    float radius = 0.f;    ///< blended disk radius (the local sampling scale)
-    int32_t index = -1;    ///< nearest surfel (tree order); -2 when it was a LoD node disk; -1 miss
-    uint32_t count = 0;    ///< how many disks were blended
-};
 
 /// Statistics hook that counts nothing (the fast path).
 struct NoStats {
@@ -194,10 +159,14 @@ template <class Policy, class Stats>
 inline bool leaf_disks(const SurfelTree &tree, uint32_t b, uint32_t cnt, const Ray &ray,
                        bool cull, Policy &policy, Stats &stats) {
     const auto &surfels = tree.surfels();
+    // Every disk of the leaf is tested against the search bound at the leaf's entry (the
+    // policy then drops those beyond its current bound): one disk or eight at a time, the
+    // same disks reach the policy.
+    const float tfar = policy.tfar();
 #if defined(POINTVIZ_LEAF_SIMD)
     if (cnt <= 8) {
         LeafHits lh;
-        intersect_leaf8(ray, &surfels[b], cnt, policy.tfar(), cull, lh);
+        intersect_leaf8(ray, &surfels[b], cnt, tfar, cull, lh);
         for (uint32_t k = 0; k < cnt; ++k) stats.disk();
         for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
             uint32_t k = uint32_t(__builtin_ctz(m));
@@ -211,7 +180,7 @@ inline bool leaf_disks(const SurfelTree &tree, uint32_t b, uint32_t cnt, const R
         stats.disk();
         float facing;
         DiskHit h;
-        if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), cull, facing, h)) continue;
+        if (!intersect_disk(ray, s.p, s.n, s.r, tfar, cull, facing, h)) continue;
         if (policy.add({h.t, h.u2, facing, s.r, k})) return true;
     }
     return false;
@@ -299,4 +268,5 @@ void traverse_binary(const SurfelTree &tree, const Ray &ray, const TraceOptions 
     }
 }
 
+POINTVIZ_ISA_END
 }  // namespace pointviz

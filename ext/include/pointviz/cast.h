@@ -4,7 +4,8 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "pointviz/trace.h"
+#include "pointviz/query.h"
+#include "pointviz/tree.h"
 
 namespace pointviz {
 

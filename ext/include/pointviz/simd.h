@@ -5,18 +5,26 @@
 // which operand wins on NaN), so the vector tests give the scalar tests' results bit for bit.
 #pragma once
 
+#include "pointviz/isa.h"
+
 #include <cmath>
 #include <cstdint>
 
-#if defined(__SSE2__) || defined(_M_X64)
+#if (defined(__SSE2__) || defined(_M_X64)) && !defined(POINTVIZ_NO_SIMD)
 #include <emmintrin.h>
 #define POINTVIZ_SSE2 1
+#endif
+#if defined(__AVX2__) && !defined(POINTVIZ_NO_SIMD)
+#include <immintrin.h>
+#define POINTVIZ_AVX2 1
 #endif
 
 namespace pointviz {
 
 /// Lanes of the wide tree's nodes.
 constexpr int kWide = 4;
+
+POINTVIZ_ISA_BEGIN
 
 #if defined(POINTVIZ_SSE2)
 
@@ -118,5 +126,32 @@ inline uint32_t movemask(F4 m) {
 }
 
 #endif
+
+#if defined(POINTVIZ_AVX2)
+
+/// Eight floats in an AVX register (the disks of a leaf, disk_kernel.h).
+struct F8 {
+    __m256 v;
+    F8() = default;
+    explicit F8(__m256 x) : v(x) {}
+    explicit F8(float s) : v(_mm256_set1_ps(s)) {}
+    void store(float *p) const { _mm256_store_ps(p, v); }
+};
+inline F8 operator+(F8 a, F8 b) { return F8(_mm256_add_ps(a.v, b.v)); }
+inline F8 operator-(F8 a, F8 b) { return F8(_mm256_sub_ps(a.v, b.v)); }
+inline F8 operator*(F8 a, F8 b) { return F8(_mm256_mul_ps(a.v, b.v)); }
+inline F8 operator/(F8 a, F8 b) { return F8(_mm256_div_ps(a.v, b.v)); }
+inline F8 vabs(F8 a) { return F8(_mm256_andnot_ps(_mm256_set1_ps(-0.f), a.v)); }
+inline F8 operator<=(F8 a, F8 b) { return F8(_mm256_cmp_ps(a.v, b.v, _CMP_LE_OQ)); }
+inline F8 operator>=(F8 a, F8 b) { return F8(_mm256_cmp_ps(a.v, b.v, _CMP_GE_OQ)); }
+inline F8 operator&(F8 a, F8 b) { return F8(_mm256_and_ps(a.v, b.v)); }
+inline uint32_t movemask(F8 m) { return uint32_t(_mm256_movemask_ps(m.v)); }
+
+#endif
+
+/// The scalar lane: the same operations on one float (masks are bools).
+inline float vabs(float a) { return std::fabs(a); }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

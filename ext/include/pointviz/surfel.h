@@ -1,6 +1,8 @@
 // pointviz — the surfel (an oriented disk) and the ray–disk test.
 #pragma once
 
+#include "pointviz/isa.h"
+
 #include <cstdint>
 
 #include "pointviz/ray.h"
@@ -16,6 +18,8 @@ struct Surfel {
 };
 static_assert(sizeof(Surfel) == 32, "Surfel is a 32-byte contract");
 
+POINTVIZ_ISA_BEGIN
+
 /// Rays closer than this to parallel with a disk's plane (|cos| of the angle between ray and
 /// normal) miss it: such a hit would be a sliver at the disk's edge with an unstable t, and the
 /// neighbouring disks of a surface seen edge-on cover that spot better.
@@ -26,23 +30,6 @@ struct DiskHit {
     float t;       ///< ray parameter of the hit on the disk's plane
     float u2;      ///< (distance from the centre / radius)^2, in [0, 1]
 };
-
-/// Oriented-disk intersection. Cheapest rejection first: culling and parallel rays, then the
-/// t-interval, then the radius. `facing` is dot(d, n); with `cull`, disks facing away from the
-/// ray (facing > 0) are skipped before any division.
-inline bool intersect_disk(const Ray &ray, Vec3 p, Vec3 n, float r, float tmax, bool cull,
-                           float &facing, DiskHit &hit) {
-    facing = dot(ray.d, n);
-    if (cull && facing > 0.f) return false;
-    if (std::fabs(facing) < kParallelCos) return false;
-    float t = dot(p - ray.o, n) / facing;
-    if (!(t >= ray.tmin && t <= tmax)) return false;
-    Vec3 q = ray.o + ray.d * t - p;
-    float u2 = length2(q) / (r * r);
-    if (!(u2 <= 1.f)) return false;
-    hit = {t, u2};
-    return true;
-}
 
 /// 8-bit colour channel `c` (0..2) of a packed RGBA value, as a float in [0, 1].
 inline float channel(uint32_t rgba, int c) { return float((rgba >> (8 * c)) & 0xffu) * (1.f / 255.f); }
@@ -55,5 +42,7 @@ inline uint32_t pack_rgb(float r, float g, float b) {
     };
     return q(r) | (q(g) << 8) | (q(b) << 16) | (0xffu << 24);
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

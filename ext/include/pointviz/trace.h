@@ -6,6 +6,7 @@
 #include "pointviz/wide_trace.h"
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 
 template <class Policy, class Stats>
 void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
@@ -91,4 +92,5 @@ bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bo
     return a.hit;
 }
 
+POINTVIZ_ISA_END
 }  // namespace pointviz

@@ -4,6 +4,8 @@
 // leaf and level-of-detail disk tests it shares, so both traversals find the same disks.
 #pragma once
 
+#include "pointviz/isa.h"
+
 #include <cstdint>
 
 #include "pointviz/binary_trace.h"
@@ -11,6 +13,8 @@
 #include "pointviz/wide_node.h"
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
+
 namespace detail {
 
 /// What a pending entry of the wide traversal stands for.
@@ -200,5 +204,7 @@ void traverse_wide(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
         } while (e.t > policy.tfar());
     }
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

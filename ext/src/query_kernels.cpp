@@ -1,12 +1,21 @@
-// pointviz — batched ray queries.
-#include "pointviz/cast.h"
-
+// pointviz — the batched ray queries of one instruction set. This file is compiled once per
+// instruction set (ext/CMakeLists.txt: POINTVIZ_ISA_NS names the inline namespace of its
+// kernels, POINTVIZ_KERNELS the function returning its table); dispatch.cpp picks one.
 #include <cmath>
 #include <mutex>
 
+#include "pointviz/dispatch.h"
 #include "pointviz/parallel.h"
+#include "pointviz/trace.h"
+
+#ifndef POINTVIZ_KERNELS
+#define POINTVIZ_KERNELS kernels_base
+#define POINTVIZ_KERNELS_ISA Isa::Base
+#define POINTVIZ_KERNELS_NAME "base"
+#endif
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 namespace {
 
 /// Rays handled per claimed chunk: large enough to amortise scheduling, small enough to balance.
@@ -77,33 +86,38 @@ void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, d
     if (out.count) out.count[i] = uint8_t(h.count);
 }
 
-}  // namespace
+/// Runs `per_ray(i, counts)` for every ray of [0, n) on `threads` workers, adding each chunk's
+/// counts to `stats`.
+template <class PerRay>
+void for_each_ray(size_t n, int threads, BatchStats &stats, PerRay &&per_ray) {
+    std::mutex m;
+    parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
+        BatchStats local;
+        for (size_t i = b; i < e; ++i) per_ray(i, local);
+        local.rays = e - b;
+        merge(stats, local, m);
+    });
+}
 
 template <class T>
 void cast_rays(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
-    std::mutex m;
-    parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
-        BatchStats local;
-        for (size_t i = b; i < e; ++i) {
-            Ray ray;
-            double len = local_ray(tree, rays + 6 * i, ray);
-            double rd[6];
-            for (int k = 0; k < 6; ++k) rd[k] = double(rays[6 * i + k]);
-            SurfaceHit h;
-            bool hit = false;
-            if (len == 0.0) {
-                ++local.invalid;
-                local.first_invalid = std::min(local.first_invalid, i);
-            } else {
-                ray.spread = pixel_angle;
-                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, h, st); });
-            }
-            local.hits += hit;
-            write_hit(out, i, hit, h, len, rd, tree);
+    for_each_ray(n, threads, stats, [&](size_t i, BatchStats &local) {
+        Ray ray;
+        double len = local_ray(tree, rays + 6 * i, ray);
+        double rd[6];
+        for (int k = 0; k < 6; ++k) rd[k] = double(rays[6 * i + k]);
+        SurfaceHit h;
+        bool hit = false;
+        if (len == 0.0) {
+            ++local.invalid;
+            local.first_invalid = std::min(local.first_invalid, i);
+        } else {
+            ray.spread = pixel_angle;
+            hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, h, st); });
         }
-        local.rays = e - b;
-        merge(stats, local, m);
+        local.hits += hit;
+        write_hit(out, i, hit, h, len, rd, tree);
     });
 }
 
@@ -111,37 +125,56 @@ template <class T>
 void occluded(const SurfelTree &tree, const T *rays, const float *t_max, size_t n,
               const TraceOptions &opt, float t_min, float pixel_angle, int threads, uint8_t *hit,
               bool count, BatchStats &stats) {
-    std::mutex m;
-    parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
-        BatchStats local;
-        for (size_t i = b; i < e; ++i) {
-            Ray ray;
-            double len = local_ray(tree, rays + 6 * i, ray);
-            hit[i] = 0;
-            if (len == 0.0 || std::isnan(t_max[i])) {
-                ++local.invalid;
-                local.first_invalid = std::min(local.first_invalid, i);
-                continue;
-            }
-            ray.tmin = float(double(t_min) * len);
-            ray.tmax = float(double(t_max[i]) * len);
-            ray.spread = pixel_angle;
-            bool h = counted(count, local, [&](auto &st) { return any_hit(tree, ray, opt, false, st); });
-            hit[i] = h;
-            local.hits += h;
+    for_each_ray(n, threads, stats, [&](size_t i, BatchStats &local) {
+        Ray ray;
+        double len = local_ray(tree, rays + 6 * i, ray);
+        hit[i] = 0;
+        if (len == 0.0 || std::isnan(t_max[i])) {
+            ++local.invalid;
+            local.first_invalid = std::min(local.first_invalid, i);
+            return;
         }
-        local.rays = e - b;
-        merge(stats, local, m);
+        ray.tmin = float(double(t_min) * len);
+        ray.tmax = float(double(t_max[i]) * len);
+        ray.spread = pixel_angle;
+        bool h = counted(count, local, [&](auto &st) { return any_hit(tree, ray, opt, false, st); });
+        hit[i] = h;
+        local.hits += h;
     });
 }
 
-template void cast_rays<float>(const SurfelTree &, const float *, size_t, const TraceOptions &,
-                               float, int, CastOutput, bool, BatchStats &);
-template void cast_rays<double>(const SurfelTree &, const double *, size_t, const TraceOptions &,
-                                float, int, CastOutput, bool, BatchStats &);
-template void occluded<float>(const SurfelTree &, const float *, const float *, size_t,
-                              const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
-template void occluded<double>(const SurfelTree &, const double *, const float *, size_t,
-                               const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
+void intersect(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
+               const TraceOptions &opt, SurfaceHit *hits) {
+    for (size_t i = 0; i < n; ++i) {
+        Ray r = rays[i];
+        r.o += offset;
+        NoStats ns;
+        closest_hit(tree, r, opt, hits[i], ns);
+    }
+}
+
+void occlude(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
+             const TraceOptions &opt, uint8_t *hit) {
+    for (size_t i = 0; i < n; ++i) {
+        Ray r = rays[i];
+        r.o += offset;
+        NoStats ns;
+        hit[i] = any_hit(tree, r, opt, false, ns);
+    }
+}
+
+}  // namespace
+POINTVIZ_ISA_END
+
+const QueryKernels &POINTVIZ_KERNELS() {
+    static const QueryKernels k{POINTVIZ_KERNELS_ISA, POINTVIZ_KERNELS_NAME,
+                                &POINTVIZ_ISA_NS::cast_rays<float>,
+                                &POINTVIZ_ISA_NS::cast_rays<double>,
+                                &POINTVIZ_ISA_NS::occluded<float>,
+                                &POINTVIZ_ISA_NS::occluded<double>,
+                                &POINTVIZ_ISA_NS::intersect,
+                                &POINTVIZ_ISA_NS::occlude};
+    return k;
+}
 
 }  // namespace pointviz
