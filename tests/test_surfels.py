@@ -445,3 +445,16 @@ def test_pickle_rebuilds_the_same_tree(sphere20k, rng):
     for key in ("t_hit", "normals", "index"):
         np.testing.assert_array_equal(a[key], b[key])
     assert copy.n_nodes == scene.n_nodes and copy.box_depth == scene.box_depth
+
+
+def test_scene_without_its_cloud_still_traces(sphere20k, rng):
+    import pickle
+
+    rays = rays_at_sphere(rng, 2000)
+    kept = SurfelScene(sphere20k).cast_rays(rays)
+    scene = SurfelScene(sphere20k, keep_cloud=False)
+    assert scene.cloud is None
+    out = scene.cast_rays(rays)
+    np.testing.assert_array_equal(out["t_hit"], kept["t_hit"])
+    with pytest.raises(InputError, match="keep_cloud=False"):
+        pickle.dumps(scene)
