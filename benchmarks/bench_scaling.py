@@ -208,7 +208,33 @@ def whole_process(sizes: list[int], threads_list: list[int], out: Path) -> int:
             pf.write_json(out, "scaling_whole_process.json",
                           {"benchmark": "scaling (whole process)", "machine": pf.machine_info(),
                            "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "rows": rows})
+    if rows:
+        print(f"wrote {chart_whole_process(rows, out)}")
     return 0
+
+
+def chart_whole_process(rows: list, out_dir: Path) -> Path:
+    """Build time, bytes per surfel (core and whole-process peak) and Mrays/s against size."""
+    plt = pf.pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    for t in sorted({r["threads"] for r in rows}):
+        sel = [r for r in rows if r["threads"] == t]
+        n = [r["n"] for r in sel]
+        axes[0].plot(n, [r["build_s"] for r in sel], "-o", ms=3, label=f"build, {t} thr")
+        axes[1].plot(n, [r["peak_rss_per_surfel"] for r in sel], "-o", ms=3,
+                     label=f"whole process peak (VmHWM), {t} thr")
+        axes[1].plot(n, [r["memory_bytes_per_surfel"] for r in sel], "--s", ms=3,
+                     label="core (memory_bytes)")
+        axes[2].plot(n, [r["mrays"] for r in sel], "-o", ms=3, label=f"{t} thr")
+    for ax, title in zip(axes, ("build time (s, wall)", "bytes / surfel",
+                                f"primary Mrays/s ({WHOLE_PROCESS_PIXELS}x{WHOLE_PROCESS_PIXELS})")):
+        ax.set_xscale("log")
+        ax.set_xlabel("surfels")
+        ax.set_title(title)
+        ax.legend(fontsize=7)
+    axes[0].set_yscale("log")
+    fig.suptitle("One process per size: unit sphere sampled in chunks, full variant")
+    return pf.save_figure(fig, out_dir, "scaling_whole_process.png")
 
 
 def print_row(rec: dict) -> None:
