@@ -182,7 +182,8 @@ def one_process(n: int, threads: int) -> dict:
         best = min(best, time.perf_counter() - start)
     peak = peak_rss_whole_process()
     return {"n": n, "threads": threads, "sample_s": sample_s, "build_s": build_s,
-            "mrays": len(rays) / best / 1e6, "hit_fraction": float(np.isfinite(out["t_hit"]).mean()),
+            "mrays": len(rays) / best / 1e6,
+            "hit_fraction": float(np.isfinite(out["t_hit"]).mean()),
             "memory_bytes_per_surfel": scene.memory_bytes / n,
             "peak_rss_bytes": peak, "peak_rss_per_surfel": peak / n,
             "peak_rss_build_per_surfel": after_build / n, "interpreter_rss_bytes": base}
@@ -226,8 +227,9 @@ def chart_whole_process(rows: list, out_dir: Path) -> Path:
         axes[1].plot(n, [r["memory_bytes_per_surfel"] for r in sel], "--s", ms=3,
                      label="core (memory_bytes)")
         axes[2].plot(n, [r["mrays"] for r in sel], "-o", ms=3, label=f"{t} thr")
+    px = WHOLE_PROCESS_PIXELS
     for ax, title in zip(axes, ("build time (s, wall)", "bytes / surfel",
-                                f"primary Mrays/s ({WHOLE_PROCESS_PIXELS}x{WHOLE_PROCESS_PIXELS})")):
+                                f"primary Mrays/s ({px}x{px})")):
         ax.set_xscale("log")
         ax.set_xlabel("surfels")
         ax.set_title(title)

@@ -283,7 +283,7 @@ class SurfelScene:
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by the core: surfels, binary and wide nodes, boxes and the index permutation."""
+        """Bytes held by the core: surfels, binary and wide nodes, boxes, index permutation."""
         return int(self._tree.memory_bytes)
 
     @property

@@ -160,8 +160,8 @@ def test_tree_matches_brute_force(rng):
     for cull in (False, True):
         t_bf, idx_bf = brute_first_disk(cloud, rays, cull=cull)
         for variant, traversal in itertools.product(VARIANTS, TRAVERSALS):
-            scene = SurfelScene(cloud, variant=variant, interpolation="none", cull=cull, leaf_size=4,
-                                traversal=traversal)
+            scene = SurfelScene(cloud, variant=variant, interpolation="none", cull=cull,
+                                leaf_size=4, traversal=traversal)
             out = scene.cast_rays(rays)
             np.testing.assert_allclose(out["t_hit"], t_bf, rtol=1e-4, atol=1e-5)
             agree = out["index"] == idx_bf
