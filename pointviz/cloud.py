@@ -16,6 +16,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .array_checks import (  # noqa: F401 - the checks of the arrays a cloud is made of
+    check_finite as _check_finite,
+    colors as _validate_colors,
+    normals as _validate_normals,
+    numeric as _numeric,
+    per_point as _validate_per_point,
+    radii as _validate_radii,
+    rows3 as _rows3,
+    unit_vector as _unit_vector,
+    viewpoints as _validate_viewpoints,
+)
 from .arrays import bounds
 from .errors import InputError, require
 from .estimation import (  # noqa: F401 - re-exported: the estimation used to live here
@@ -42,138 +53,6 @@ from .estimation import (  # noqa: F401 - re-exported: the estimation used to li
 # Largest extent of a cloud: surfels are stored in float32 relative to the cloud's centre, and
 # squared distances (normal and radius estimation) must stay finite in float64.
 MAX_EXTENT = 1e30
-
-
-# ---------------------------------------------------------------------------------------------
-# validation helpers
-
-
-def _numeric(name: str, value, *, allow_int: bool = True) -> np.ndarray:
-    """``np.asarray(value)`` checked to be a real numeric array (not bool/object/complex/str)."""
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name}: cannot be converted to an array ({exc})") from None
-    kinds = "iuf" if allow_int else "f"
-    if arr.dtype.kind not in kinds:
-        raise InputError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
-    return arr
-
-
-def _check_finite(name: str, arr: np.ndarray) -> None:
-    """Raise :class:`InputError` naming the rows of ``arr`` that contain NaN or inf."""
-    if arr.dtype.kind != "f":
-        return
-    finite = np.isfinite(arr)
-    if finite.all():
-        return
-    bad = ~finite if arr.ndim == 1 else ~finite.all(axis=1)
-    rows = np.flatnonzero(bad)
-    what = "rows contain" if arr.ndim > 1 else "values are"
-    raise InputError(f"{name}: {rows.size} {what} NaN or inf (first at row {rows[0]})")
-
-
-def _rows3(name: str, value, n: int | None) -> np.ndarray:
-    """Validate an (n, 3) real array; return it as float64 (not yet copied)."""
-    arr = _numeric(name, value)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError(f"{name}: expected shape (n, 3), got {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise InputError(f"{name}: has {arr.shape[0]} rows but points has {n}")
-    _check_finite(name, arr)
-    return arr
-
-
-def _unit_vector(name: str, value) -> np.ndarray:
-    arr = _numeric(name, value)
-    if arr.shape != (3,):
-        raise InputError(f"{name}: expected shape (3,), got {arr.shape}")
-    _check_finite(name, arr)
-    norm = float(np.linalg.norm(arr))
-    if norm == 0.0:
-        raise InputError(f"{name}: must not be the zero vector")
-    return np.ascontiguousarray(arr / norm, dtype=np.float64)
-
-
-def _validate_normals(value, n: int) -> np.ndarray:
-    arr = _rows3("normals", value, n).astype(np.float64)
-    length = np.linalg.norm(arr, axis=1)
-    zero = np.flatnonzero(length == 0.0)
-    if zero.size:
-        raise InputError(
-            f"normals: {zero.size} rows have zero length (first at row {zero[0]}); "
-            "give a direction for every point or leave normals out to estimate them"
-        )
-    return np.ascontiguousarray(arr / length[:, None], dtype=np.float32)
-
-
-def _validate_radii(value, n: int) -> np.ndarray:
-    arr = _numeric("radii", value)
-    if arr.ndim == 0:
-        arr = np.full(n, arr, dtype=np.float64)
-    if arr.shape != (n,):
-        raise InputError(f"radii: expected shape ({n},) or a scalar, got {arr.shape}")
-    _check_finite("radii", arr)
-    bad = np.flatnonzero(~(arr > 0))
-    if bad.size:
-        raise InputError(
-            f"radii: {bad.size} values are zero or negative (first at row {bad[0]}: {arr[bad[0]]})"
-        )
-    with np.errstate(over="ignore"):
-        out = np.ascontiguousarray(arr, dtype=np.float32)
-    if not (out > 0).all():  # positive float64 values that underflow float32
-        raise InputError("radii: values too small for float32 (underflow to 0)")
-    if not np.isfinite(out).all():
-        bad = np.flatnonzero(~np.isfinite(out))
-        raise InputError(f"radii: {bad.size} values overflow float32 (first at row {bad[0]}: {arr[bad[0]]})")
-    return out
-
-
-def _validate_colors(value, n: int) -> np.ndarray:
-    arr = _numeric("colors", value)
-    if arr.ndim != 2 or arr.shape[1] not in (3, 4):
-        raise InputError(f"colors: expected shape (n, 3), got {arr.shape}")
-    if arr.shape[0] != n:
-        raise InputError(f"colors: has {arr.shape[0]} rows but points has {n}")
-    arr = arr[:, :3]  # RGBA: alpha is dropped, surfels are opaque
-    if arr.dtype.kind in "iu":
-        lo, hi = (int(arr.min()), int(arr.max())) if arr.size else (0, 0)
-        if arr.dtype == np.uint16:
-            scale = 65535.0
-        elif lo >= 0 and hi <= 255:
-            scale = 255.0
-        else:
-            raise InputError(
-                f"colors: integer colours must be 8-bit (0..255) or uint16, got range {lo}..{hi}"
-            )
-        return np.ascontiguousarray(arr / scale, dtype=np.float32)
-    _check_finite("colors", arr)
-    outside = np.flatnonzero(((arr < 0) | (arr > 1)).any(axis=1))
-    if outside.size:
-        raise InputError(
-            f"colors: {outside.size} rows are outside [0, 1] (first at row {outside[0]}); "
-            "float colours must be in [0, 1], integer ones 0..255"
-        )
-    return np.ascontiguousarray(arr, dtype=np.float32)
-
-
-def _validate_viewpoints(value, n: int) -> np.ndarray:
-    arr = _numeric("viewpoints", value)
-    if arr.shape == (3,):
-        _check_finite("viewpoints", arr)
-        return np.ascontiguousarray(arr, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] != n:
-        raise InputError(f"viewpoints: expected shape (3,) or ({n}, 3), got {arr.shape}")
-    _check_finite("viewpoints", arr)
-    return np.ascontiguousarray(arr, dtype=np.float64)
-
-
-def _validate_per_point(name: str, value, n: int, dtype) -> np.ndarray:
-    arr = _numeric(name, value)
-    if arr.shape != (n,):
-        raise InputError(f"{name}: expected shape ({n},), got {arr.shape}")
-    _check_finite(name, arr)
-    return np.ascontiguousarray(arr, dtype=dtype)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

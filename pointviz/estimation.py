@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import array_checks
 from .errors import InputError
 
 # Neighbourhood sizes of the normal (the point included). 8 is the first ring of samples around
@@ -101,34 +102,26 @@ def _core():
 
 def _points(value, name: str = "points", minimum: int = 1) -> np.ndarray:
     """(n, 3) finite float64, C-contiguous, with at least ``minimum`` rows."""
-    from .cloud import _rows3
-
-    pts = np.ascontiguousarray(_rows3(name, value, None), dtype=np.float64)
+    pts = np.ascontiguousarray(array_checks.rows3(name, value, None), dtype=np.float64)
     if len(pts) < minimum:
         raise InputError(f"{name}: has {len(pts)} point(s), need at least {minimum}")
     return pts
 
 
 def _normals(value, n: int) -> np.ndarray:
-    from .cloud import _validate_normals
-
-    return np.ascontiguousarray(_validate_normals(value, n), dtype=np.float32)
+    return np.ascontiguousarray(array_checks.normals(value, n), dtype=np.float32)
 
 
 def _viewpoints(value, n: int):
     if value is None:
         return None
-    from .cloud import _validate_viewpoints
-
-    return _validate_viewpoints(value, n)
+    return array_checks.viewpoints(value, n)
 
 
 def _up(value):
     if value is None:
         return None
-    from .cloud import _unit_vector
-
-    return tuple(float(v) for v in _unit_vector("up", value))
+    return tuple(float(v) for v in array_checks.unit_vector("up", value))
 
 
 def _orient(k: int | None = None):
@@ -437,9 +430,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     vp = _viewpoints(viewpoints, n)
     group = None
     if scan_index is not None:
-        from .cloud import _validate_per_point
-
-        group = _validate_per_point("scan_index", scan_index, n, np.int32)
+        group = array_checks.per_point("scan_index", scan_index, n, np.int32)
     elif vp is not None and vp.ndim == 2:
         group = np.unique(vp, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
     if not (np.isfinite(thin) and 0.0 <= thin <= 2.0):

@@ -76,7 +76,7 @@ def parse_conf(path) -> list[tuple[Path, np.ndarray, np.ndarray, int]]:
     return scans
 
 
-def read_conf(path: Path, sample, rng) -> PointCloud:
+def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
     """Registered Stanford range scans: every scan is moved into the common frame.
 
     The conf file stores, per scan, a translation ``t`` and a quaternion ``q = (x, y, z, w)``.
@@ -94,7 +94,7 @@ def read_conf(path: Path, sample, rng) -> PointCloud:
                 f"{path}: line {lineno}: scan {scan_path.name} is a .conf file; a registration "
                 "lists point files"
             )
-    scans = _read_scans(path, entries)
+    scans = _read_scans(path, entries, read_scan)
     parts = []
     for (scan_path, t, q, lineno), scan in zip(entries, scans):
         if scan.finite == 0:
@@ -134,10 +134,10 @@ class _Scan:
     finite: int
 
 
-def _read_scans(path: Path, entries) -> list[_Scan]:
+def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
     """Every scan of a registration, placed. PLY point scans (the usual case) are read and
-    placed by one core call, in parallel; anything else by its reader, then placed here."""
-    from .registry import read_file
+    placed by one core call, in parallel; anything else by ``read_scan(path)`` (the registry's
+    reader of its format), then placed here."""
 
     def named(lineno, exc):
         return FileFormatError(f"{path}: line {lineno}: {exc}")
@@ -171,7 +171,7 @@ def _read_scans(path: Path, entries) -> list[_Scan]:
                 scans.append(_Scan(arrays["points"], arrays["colors"], data.lo, data.hi,
                                    data.mean, data.finite))
             else:
-                cloud = read_file(scan_path)  # finite rows only
+                cloud = read_scan(scan_path)  # finite rows only
                 local = cloud.points
                 scans.append(_Scan(local @ quaternion_matrix(q) + t, cloud.colors,
                                    local.min(axis=0), local.max(axis=0), local.mean(axis=0),

@@ -26,14 +26,15 @@ from .ply import read_ply
 from .text import read_text
 from .vtk import read_vtk
 
-#: Reader of each extension: ``reader(path, sample, rng) -> PointCloud``.
+#: Reader of each extension: ``reader(path, sample, rng) -> PointCloud``. A registration reads
+#: its scans back through this registry (``read_file``), whatever their format.
 READERS = {
     ".ply": read_ply, ".pcd": read_pcd,
     ".xyz": read_text, ".xyzn": read_text, ".xyzrgb": read_text, ".pts": read_text,
     ".obj": read_mesh, ".off": read_mesh, ".stl": read_mesh, ".glb": read_mesh, ".gltf": read_mesh,
     ".las": read_las, ".laz": read_las,
     ".vtp": read_vtk, ".vtk": read_vtk,
-    ".conf": read_conf,
+    ".conf": lambda path, sample, rng: read_conf(path, sample, rng, read_scan=read_file),
 }  # fmt: skip
 
 POINT_EXTENSIONS = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
