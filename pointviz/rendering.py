@@ -169,7 +169,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     denoise : bool, {"high", "balanced", "fast"} or pointviz.denoise.Denoiser
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
-        "high" quality. The tracer's colour stays in ``frame.noisy_color``.
+        ``pointviz.denoise.DENOISE_QUALITY`` ("fast": the benchmark's choice). The tracer's
+        colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
 
