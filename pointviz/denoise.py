@@ -28,11 +28,11 @@ DENOISE_EXTRA = "denoise"
 #: Filter qualities of Open Image Denoise. On the CPU "balanced" runs the same network as
 #: "high"; "fast" is a smaller one.
 DENOISE_QUALITIES = ("high", "balanced", "fast")
-#: The default, chosen on benchmarks/bench_denoise.py (480x360, 2 cores): "fast" takes 0.53x the
-#: CPU time of "high" (0.25 s vs 0.47 s; the 4-spp frame itself 0.73 s), so a denoised 4-spp
-#: frame costs 1.34x the 4-spp frame instead of 1.64x (issue 14's budget: 1.5x), and scores 0.29
-#: dB less (46.22 vs 46.51 dB mean over 4 seeds, 16 spp: 46.01). On the dragon's scans the two
-#: differ by 0.6/255 per pixel on average, not visibly. "high" stays one argument away.
+#: The default, chosen on benchmarks/bench_denoise.py (480x360, 2 cores): "fast" takes about half
+#: the CPU time of "high" (0.26 s vs 0.50 s; the 4-spp frame itself 0.68 s), so a denoised 4-spp
+#: frame costs 1.33x the 4-spp frame's wall time instead of 1.84x (issue 14's budget: 1.5x), and
+#: scores 0.29 dB less (46.22 vs 46.51 dB mean over 4 seeds; 16 spp: 46.01). On the dragon's scans
+#: the two differ by 0.6/255 per pixel on average, not visibly. "high" stays one argument away.
 DENOISE_QUALITY = "fast"
 #: OIDN's "cleanAux" (the guides are noise-free) stays off, although the tracer's albedo and
 #: normals are first-hit quantities, antialiased only: with it OIDN picks networks trained on
