@@ -245,6 +245,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     settings.shadows = bool(shadows)
     # the core only asks whether rays carry a footprint at all
     settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
+    settings.footprint_offsets = lod_pixels != "auto"
     settings.seed = seed
     settings.threads = threads or 0
 

@@ -493,6 +493,7 @@ NB_MODULE(_core, m) {
         .def_rw("reflections", &RenderSettings::reflections)
         .def_rw("shadows", &RenderSettings::shadows)
         .def_rw("lod_pixels", &RenderSettings::lod_pixels)
+        .def_rw("footprint_offsets", &RenderSettings::footprint_offsets)
         .def_rw("seed", &RenderSettings::seed)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)

@@ -277,7 +277,8 @@ private:
             const bool follow = reflects && m.roughness == 0.f;
             if (pr.albedo)
                 albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
-            const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
+            const float scale = std::max(
+                {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
             const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
