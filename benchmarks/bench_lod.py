@@ -67,13 +67,12 @@ def variants() -> list[tuple[str, dict]]:
 
 
 def load(args) -> list:
-    if args.quick:
-        models = [lod_budget.striped_torus(pf.QUICK_SIZE)]
-    else:
-        models = [lod_budget.striped_torus(args.size)]
-    models[0].name = "torus"
-    models += pf.load_models(args, ["dragon-raw"], None)
-    models += pf.load_models(args, ["armadillo"], ARMADILLO_SIZE)
+    models = []
+    if "torus" in args.models:
+        models.append(lod_budget.striped_torus(pf.QUICK_SIZE if args.quick else args.size))
+    for name, size in (("dragon-raw", None), ("armadillo", ARMADILLO_SIZE)):
+        if name in args.models:
+            models += pf.load_models(args, [name], size)
     return models
 
 
@@ -180,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     p = pf.base_parser(__doc__.split("\n\n")[0], "bench_lod")
     p.add_argument("--size", type=int, default=ANALYTIC_SIZE, help="surfels of the analytic torus")
     p.add_argument("--path", action="store_true", help="also measure popping along an orbit")
+    p.add_argument("--models", nargs="+", default=["torus", "dragon-raw", "armadillo"],
+                   choices=["torus", "dragon-raw", "armadillo"])
     args = p.parse_args(argv)
     common.probe_pointviz()
     if args.quick:

@@ -319,7 +319,8 @@ class SurfelScene:
 
     # -- queries ----------------------------------------------------------------------------
     def cast_rays(self, rays, *, pixel_angle: float | None = None, camera=None,
-                  lod_pixels: float | None = None, stats: bool = True) -> dict:
+                  lod_pixels: float | str | None = None, stats: bool = True,
+                  max_error: float | None = None) -> dict:
         """Closest hits with interpolated attributes.
 
         Parameters
@@ -331,8 +332,12 @@ class SurfelScene:
             camera) rays are traced at full detail.
         camera : Camera, optional
             Takes ``pixel_angle`` from the camera.
-        lod_pixels : float, optional
-            Overrides the scene's LoD threshold for this call; 0 disables LoD.
+        lod_pixels : float or "auto", optional
+            Overrides the scene's LoD threshold for this call; 0 disables LoD; "auto" stops
+            by the error budget ``max_error`` (see :func:`pointviz.render`).
+        stats : bool
+        max_error : float, optional
+            With ``lod_pixels="auto"``: the budget (mean FLIP).
 
         Returns
         -------
@@ -345,7 +350,7 @@ class SurfelScene:
         """
         arr = as_rays(rays)
         pa = _pixel_angle(pixel_angle, camera)
-        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels), pixel_angle=pa,
+        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels, max_error), pixel_angle=pa,
                              threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return out
