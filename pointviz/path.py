@@ -960,7 +960,7 @@ MANIFEST_NAME = "pointviz_path.json"
 MANIFEST_FORMAT = "pointviz.path_render"
 MANIFEST_VERSION = 1
 #: Render settings recorded in the manifest (``threads`` is not: results never depend on it).
-_IMAGE_SETTINGS = ("shadows", "reflections", "spp", "lod_pixels", "seed", "ground")
+_IMAGE_SETTINGS = ("shadows", "reflections", "spp", "lod_pixels", "max_error", "seed", "ground")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 

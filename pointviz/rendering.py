@@ -117,24 +117,58 @@ def _check_int(value, name, lo, hi):
     return int(value)
 
 
+#: The automatic level of detail's default error budget: mean FLIP of the frame against full
+#: detail (benchmarks/README.md, "Issue 18": measured within it on analytic scenes and scans).
+DEFAULT_MAX_ERROR = 0.005
+
+
+def check_lod(lod_pixels=1.0, max_error=None):
+    """The level-of-detail options of :func:`render`, checked and normalised.
+
+    Returns
+    -------
+    (float or "auto", float or None)
+        ``(lod_pixels, max_error)``; for ``"auto"`` the budget defaults to DEFAULT_MAX_ERROR.
+    """
+    if isinstance(lod_pixels, str):
+        if lod_pixels != "auto":
+            raise InputError(f"lod_pixels: expected a number >= 0 or 'auto', got {lod_pixels!r}")
+        if max_error is None:
+            max_error = DEFAULT_MAX_ERROR
+        if isinstance(max_error, bool) or not isinstance(max_error, (int, float, np.number)):
+            raise InputError(f"max_error: expected a number in [0, 1], got {max_error!r}")
+        if not (np.isfinite(max_error) and 0 <= max_error <= 1):
+            raise InputError(f"max_error: expected a number in [0, 1] (mean FLIP), got {max_error!r}")
+        return "auto", float(max_error)
+    if max_error is not None:
+        raise InputError(f"max_error: only applies with lod_pixels='auto' "
+                         f"(got lod_pixels={lod_pixels!r})")
+    if isinstance(lod_pixels, bool) or not isinstance(lod_pixels, (int, float, np.number)) \
+            or not (np.isfinite(lod_pixels) and lod_pixels >= 0):
+        raise InputError(f"lod_pixels: expected a number >= 0 or 'auto', got {lod_pixels!r}")
+    return float(lod_pixels), None
+
+
 def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
-                         threads: int | None = None, lod_pixels: float = 1.0, **_ignored):
+                         threads: int | None = None, lod_pixels: float | str = 1.0,
+                         max_error: float | None = None, **_ignored):
     """The numeric options of :func:`render`, checked (InputError naming the bad one) and
-    normalised: ``(spp, reflections, seed, threads, lod_pixels)``. Callers with expensive work
-    before the render (the CLI: trees) check first."""
+    normalised: ``(spp, reflections, seed, threads, lod_pixels)`` (lod_pixels: a float or
+    "auto"; :func:`check_lod` gives the budget too). Callers with expensive work before the
+    render (the CLI: trees) check first."""
     spp = _check_int(spp, "spp", 1, 4096)
     reflections = _check_int(reflections, "reflections", 0, 16)
     seed = _check_int(seed, "seed", 0, 2**63 - 1)
     if threads is not None:
         threads = _check_int(threads, "threads", 1, 1024)
-    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
-    return spp, reflections, seed, threads, float(lod_pixels)
+    lod_pixels, _ = check_lod(lod_pixels, max_error)
+    return spp, reflections, seed, threads, lod_pixels
 
 
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
-           lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise=False,
+           lod_pixels: float | str = 1.0, max_error: float | None = None, seed: int = 0,
+           threads: int | None = None, progress=None, cancel=None, ground=None, look=None,
+           denoise=False,
            background: bool = False) -> Frame:
     """Ray trace a frame.
 
@@ -149,8 +183,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         Mirror/glossy bounces (0..16).
     spp : int
         Samples per pixel, stratified (R2 sequence with a per-pixel shift); 1 = pixel centres.
-    lod_pixels : float
-        Level-of-detail threshold in pixels; 0 traces at full detail.
+    lod_pixels : float or "auto"
+        Level-of-detail threshold in pixels; 0 traces at full detail. "auto": every ray
+        (primary, shadow, reflection) stops at the coarsest node whose predicted contribution to
+        the image error fits in ``max_error`` (the model: benchmarks/README.md, "Issue 18").
+    max_error : float, optional
+        With ``lod_pixels="auto"`` only: the frame's mean FLIP against full detail the level of
+        detail may cost, in [0, 1]; default DEFAULT_MAX_ERROR (0.005). 0 is full detail.
     seed : int
         The frame is a deterministic function of the seed, whatever ``threads`` is.
     threads : int, optional
@@ -197,14 +236,18 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         if ground is not None:
             scene = scene.with_ground(ground)
     spp, reflections, seed, threads, lod_pixels = check_render_options(
-        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels)
+        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels,
+        max_error=max_error)
+    lod_pixels, max_error = check_lod(lod_pixels, max_error)
 
-    rs, origin = scene.to_core(camera, lod_pixels)
+    rs, origin = scene.to_core(camera, lod_pixels, max_error)
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
     settings.shadows = bool(shadows)
-    settings.lod_pixels = float(lod_pixels)
+    # the core only asks whether rays carry a footprint at all
+    settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
+    settings.footprint_offsets = lod_pixels != "auto"
     settings.seed = seed
     settings.threads = threads or 0
 
@@ -232,7 +275,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
-                         "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads,
+                         "lod_pixels": lod_pixels, "max_error": max_error, "seed": seed, "threads": threads,
                          "look": scene.look.name, "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])

@@ -489,7 +489,7 @@ class Scene:
         level = min(self._extent(obj)[2] for obj in self.objects)
         return center + (level - center @ self.up) * self.up
 
-    def to_core(self, camera, lod_pixels: float):
+    def to_core(self, camera, lod_pixels: float | str, max_error: float | None = None):
         """The C++ render scene and its local origin (float64): everything is re-centred on it
         so that georeferenced scans keep float32 precision."""
         lo, hi = self.bounds()
@@ -504,7 +504,7 @@ class Scene:
                 continue
             ss = self.surfel_scene(i)
             offset = tuple(float(v) for v in (origin - ss.origin))
-            rs.add_surfels(ss.tree, ss.trace_options(lod_pixels), offset, obj.material.to_core())
+            rs.add_surfels(ss.tree, ss.trace_options(lod_pixels, max_error), offset, obj.material.to_core())
         if self.ground is not None:
             rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
         lights = self.lights if self.lights is not None else self.look.lights(camera, self.up)

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstring>
 #include <optional>
+#include <limits>
 #include <tuple>
 
 #include <memory>
@@ -418,7 +419,8 @@ NB_MODULE(_core, m) {
 
     nb::enum_<LodCriterion>(m, "LodCriterion")
         .value("size", LodCriterion::Size)
-        .value("deviation", LodCriterion::Deviation);
+        .value("deviation", LodCriterion::Deviation)
+        .value("budget", LodCriterion::Budget);
 
     nb::class_<TraceOptions>(m, "TraceOptions")
         .def(nb::init<>())
@@ -430,7 +432,8 @@ NB_MODULE(_core, m) {
         .def_rw("window", &TraceOptions::window)
         .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
-        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent);
+        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
+        .def_rw("max_error", &TraceOptions::max_error);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())
@@ -490,6 +493,7 @@ NB_MODULE(_core, m) {
         .def_rw("reflections", &RenderSettings::reflections)
         .def_rw("shadows", &RenderSettings::shadows)
         .def_rw("lod_pixels", &RenderSettings::lod_pixels)
+        .def_rw("footprint_offsets", &RenderSettings::footprint_offsets)
         .def_rw("seed", &RenderSettings::seed)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
@@ -553,12 +557,14 @@ NB_MODULE(_core, m) {
         .def("node_arrays", [](const SurfelTree &t) {
             // Decoded copies of the node fields, for tests and diagnostics.
             size_t n = t.nodes().size();
-            float *c, *r, *nn, *cone;
+            float *c, *r, *nn, *cone, *cspread, *pred;
             uint32_t *cnt, *idx;
             auto ac = new_array<float>({n, 3}, &c);
             auto ar = new_array<float>({n}, &r);
             auto an = new_array<float>({n, 3}, &nn);
             auto acone = new_array<float>({n}, &cone);
+            auto acs = new_array<float>({n}, &cspread);
+            auto apred = new_array<float>({n}, &pred);
             auto acnt = new_array<uint32_t>({n}, &cnt);
             auto aidx = new_array<uint32_t>({n}, &idx);
             for (size_t i = 0; i < n; ++i) {
@@ -567,6 +573,8 @@ NB_MODULE(_core, m) {
                 for (int k = 0; k < 3; ++k) c[3 * i + k] = nd.c[k], nn[3 * i + k] = a[k];
                 r[i] = nd.radius;
                 cone[i] = nd.cone();
+                cspread[i] = nd.colour_spread();
+                pred[i] = nd.has_cone() ? predicted_error(nd) : std::numeric_limits<float>::infinity();
                 cnt[i] = nd.count();
                 idx[i] = nd.index();
             }
@@ -581,6 +589,7 @@ NB_MODULE(_core, m) {
             std::copy(t.order().begin(), t.order().end(), ord);
             nb::dict d;
             d["center"] = ac; d["radius"] = ar; d["normal"] = an; d["cone"] = acone;
+            d["colour_spread"] = acs; d["predicted_error"] = apred;
             d["count"] = acnt; d["index"] = aidx; d["boxes"] = abx; d["order"] = aord;
             return d;
         })

@@ -46,6 +46,21 @@ constexpr uint32_t kDimsPerBounce = 64, kDimLights = 2, kDimGloss = 46, kDimOccl
 /// Lights beyond this many share random dimensions with the glossy lobe (still unbiased).
 constexpr uint32_t kMaxStratifiedLights = (kDimGloss - kDimLights) / 2;
 
+/// Footprint growth of a shadow ray toward `L` from a point `dist` away (inf: directional):
+/// the light's angular diameter. A shadow edge is blurred over that width anyway, so occluder
+/// detail finer than it is not seen; a hard light gives 0 and the ray keeps the width it starts
+/// with (the primary footprint at the hit).
+inline float shadow_spread(const Light &L, float dist) {
+    switch (L.type) {
+        case LightType::Directional: return 2.f * L.angle;
+        case LightType::Area: {
+            const float size = std::sqrt(length(cross(L.edge_u, L.edge_v)));
+            return dist > 0.f && dist < kInf ? size / dist : 0.f;
+        }
+        default: return dist > 0.f && dist < kInf ? 2.f * L.radius / dist : 0.f;
+    }
+}
+
 inline float srgb_to_linear(float c) {
     return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
 }
@@ -262,7 +277,8 @@ private:
             const bool follow = reflects && m.roughness == 0.f;
             if (pr.albedo)
                 albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
-            const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
+            const float scale = std::max(
+                {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
             const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
@@ -331,7 +347,7 @@ private:
                 sr.ray.tmin = tmin;
                 sr.ray.tmax = dist == kInf ? kInf : std::max(0.f, dist * (1.f - 1e-4f) - set_.offsets.normal_offset * scale);
                 sr.ray.width0 = r.footprint(h.t);
-                sr.ray.spread = 0.f;
+                sr.ray.spread = sr.ray.width0 > 0.f ? shadow_spread(L, dist) : 0.f;
                 sr.add = add;
                 sr.pixel = pr.pixel;
                 sr.ground_blocks = true;

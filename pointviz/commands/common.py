@@ -29,8 +29,12 @@ def add_render_options(p) -> None:
     g.add_argument("--spp", type=int, default=4, help="samples per pixel")
     g.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
     g.add_argument("--reflections", type=int, default=1, help="reflection bounces")
-    g.add_argument("--lod", type=float, default=1.0, metavar="PIXELS",
-                   help="level-of-detail threshold in pixels (0: full detail)")
+    g.add_argument("--lod", type=lod_value, default=1.0, metavar="PIXELS|auto",
+                   help="level-of-detail threshold in pixels (0: full detail), or 'auto': the "
+                        "coarsest detail within --max-error")
+    g.add_argument("--max-error", type=float, default=None, metavar="E",
+                   help="with --lod auto: mean FLIP the level of detail may cost the frame "
+                        "(default 0.005; 0: full detail)")
     g.add_argument("--light", action="append", default=None, metavar="X,Y,Z[,INTENSITY]",
                    help="directional light toward X,Y,Z (repeatable)")
     g.add_argument("--ground", choices=["auto", "matte", "mirror", "glossy", "none"],
@@ -146,10 +150,15 @@ def prepare_scene(scene) -> None:
     stage("built")
 
 
+def lod_value(text: str):
+    """``--lod``: "auto" or a number (checked with the other render options)."""
+    return "auto" if text.strip().lower() == "auto" else float(text)
+
+
 def render_kwargs(args) -> dict:
     return {"shadows": not args.no_shadows, "reflections": args.reflections, "spp": args.spp,
-            "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
-            "denoise": denoise_default(args)}
+            "lod_pixels": args.lod, "max_error": getattr(args, "max_error", None),
+            "seed": args.seed, "threads": args.threads, "denoise": denoise_default(args)}
 
 
 def denoise_default(args) -> bool:

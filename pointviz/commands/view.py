@@ -46,7 +46,7 @@ def run(args) -> int:
 
     scene, camera = make_scene_and_camera(args, prepare=False)
     overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
-                 "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
+                 "lod_pixels": args.lod, "max_error": args.max_error, "seed": args.seed, "threads": args.threads,
                  "denoise": denoise_default(args),
                  "color_mode": args.color_by, "ground": None,  # the scene already has --ground
                  "width": args.width or 0, "height": args.height or 0,

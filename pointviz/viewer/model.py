@@ -64,8 +64,11 @@ class ViewerSettings:
         Mirror/glossy bounces, 0..16.
     spp : int
         Samples per pixel, 1..4096.
-    lod_pixels : float
-        Ray tracer level-of-detail threshold in pixels (0 = full detail).
+    lod_pixels : float or "auto"
+        Ray tracer level-of-detail threshold in pixels (0 = full detail), or "auto": the error
+        budget ``max_error`` (see :func:`pointviz.render`).
+    max_error : float or None
+        With ``lod_pixels="auto"``: mean FLIP the level of detail may cost (default 0.005).
     light_azimuth_deg, light_elevation_deg : float
         Direction toward the (single directional) light, relative to the scene's up.
     light_intensity : float
@@ -85,7 +88,8 @@ class ViewerSettings:
     shadows: bool = True
     reflections: int = 1
     spp: int = 4
-    lod_pixels: float = 1.0
+    lod_pixels: float | str = 1.0
+    max_error: float | None = None
     light_azimuth_deg: float = DEFAULT_LIGHT_AZIMUTH_DEG
     light_elevation_deg: float = DEFAULT_LIGHT_ELEVATION_DEG
     light_intensity: float = 1.1
@@ -113,7 +117,10 @@ class ViewerSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {v!r}")
-        for name in ("point_scale", "lod_pixels", "light_intensity"):
+        from ..rendering import check_lod
+
+        check_lod(self.lod_pixels, self.max_error)
+        for name in ("point_scale", "light_intensity"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"{name}: expected a finite number >= 0, got {v!r}")
@@ -123,12 +130,14 @@ class ViewerSettings:
 
     def updated(self, **changes) -> ViewerSettings:
         """A validated copy with some fields replaced."""
+        if not isinstance(changes.get("lod_pixels", "auto"), str):
+            changes.setdefault("max_error", None)  # a threshold typed in ends the budget
         return replace(self, **changes)
 
     def render_kwargs(self) -> dict:
         """Keyword arguments of :func:`pointviz.render` for these settings."""
         return {"shadows": bool(self.shadows), "reflections": int(self.reflections),
-                "spp": int(self.spp), "lod_pixels": float(self.lod_pixels),
+                "spp": int(self.spp), "lod_pixels": self.lod_pixels, "max_error": self.max_error,
                 "seed": int(self.seed), "threads": self.threads, "denoise": bool(self.denoise)}
 
     def to_dict(self) -> dict:

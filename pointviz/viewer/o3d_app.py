@@ -298,7 +298,8 @@ class O3DViewer:
         self.chk_shadows.checked = s.shadows
         self.num_reflections.int_value = s.reflections
         self.num_spp.int_value = s.spp
-        self.num_lod.double_value = s.lod_pixels
+        if s.lod_pixels != "auto":  # the automatic level of detail has no threshold to show
+            self.num_lod.double_value = s.lod_pixels
         self.sl_az.int_value = round(s.light_azimuth_deg)
         self.sl_el.int_value = round(s.light_elevation_deg)
         self.cmb_ground.selected_text = "scene" if s.ground is None else s.ground
