@@ -23,7 +23,7 @@ def main(argv=None) -> int:
                         help="skip the comparison report (surfels vs reconstructed meshes)")
     args = parser.parse_args(argv)
 
-    from .commands.common import ProgressBar
+    from .progress import ProgressBar
     from .images import atomic_write_bytes
     from .rendering import render
     from .shapes import demo_scene

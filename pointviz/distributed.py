@@ -217,7 +217,7 @@ def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -
         The PNG file's bytes and ``{"pid", "built", "seconds"}``.
     """
     from .camera import Camera
-    from .path import frame_png
+    from .frames import frame_png
 
     start = time.perf_counter()
     scene, built = spec.scene()

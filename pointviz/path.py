@@ -65,6 +65,7 @@ from .camera import (
     view_basis,
 )
 from .errors import CancelledError, FileFormatError, InputError, require
+from .frames import frame_png, is_complete_png  # noqa: F401 - public here too
 from .interrupt import stage
 
 #: Catmull-Rom exponent: 0.5 is the centripetal variant (no cusps or self-intersections).
@@ -961,47 +962,6 @@ MANIFEST_FORMAT = "pointviz.path_render"
 MANIFEST_VERSION = 1
 #: Render settings recorded in the manifest (``threads`` is not: results never depend on it).
 _IMAGE_SETTINGS = ("shadows", "reflections", "spp", "lod_pixels", "seed", "ground")
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
-
-
-def frame_png(scene: Any, camera: Camera, render_kwargs: dict, cancel: Any = None) -> bytes:
-    """Render one frame and encode it as 8-bit sRGB PNG bytes (what :func:`render_path` writes).
-
-    Parameters
-    ----------
-    scene : Scene, SurfelScene or PointCloud
-    camera : Camera
-    render_kwargs : dict
-        Keyword arguments of :func:`pointviz.render`.
-    cancel : threading.Event or callable, optional
-    """
-    from .images import encode_png
-    from .rendering import render
-
-    frame = render(scene, camera, cancel=cancel, **render_kwargs)
-    return encode_png(frame.to_srgb8())
-
-
-def is_complete_png(path: str | os.PathLike, width: int, height: int) -> bool:
-    """Whether ``path`` is a whole PNG of ``width`` x ``height`` (signature, IHDR size, IEND).
-
-    Frames are written atomically, so this only fails for files damaged or replaced by hand.
-    """
-    try:
-        with open(path, "rb") as f:
-            head = f.read(24)
-            f.seek(0, os.SEEK_END)
-            if f.tell() < 24 + len(_PNG_IEND):
-                return False
-            f.seek(-len(_PNG_IEND), os.SEEK_END)
-            tail = f.read()
-    except OSError:
-        return False
-    if head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR" or tail != _PNG_IEND:
-        return False
-    w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-    return (w, h) == (width, height)
 
 
 def _settings_of(render_kwargs: dict) -> dict:
@@ -1164,7 +1124,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     settings = _settings_of(render_kwargs)
     is_cancelled = _cancel_check(cancel)
     if progress is True:
-        from .commands.common import ProgressBar
+        from .progress import ProgressBar
 
         report = ProgressBar("path")
     elif progress is False or progress is None:

@@ -12,14 +12,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _core
-from .arrays import bounds, dot3
+from . import extent as _extent_mod
 from .errors import InputError
+from .extent import (  # noqa: F401 - public here too
+    GROUND_OUTLIER_FRACTION,
+    GROUND_ROBUST_MIN_POINTS,
+    cloud_extent,
+)
 
 _Y_UP = (0.0, 1.0, 0.0)
-#: Fraction of a large cloud's lowest points that may sink below the "auto" ground.
-GROUND_OUTLIER_FRACTION = 0.0005
-#: Clouds smaller than this rest on their lowest point.
-GROUND_ROBUST_MIN_POINTS = 2000
 
 
 def _rgb(value, name: str) -> tuple[float, float, float]:
@@ -292,38 +293,6 @@ def resolve_look(look, geometry, up) -> Look:
     return LOOKS[look]
 
 
-def cloud_extent(points, radii, up) -> tuple[np.ndarray, np.ndarray, float]:
-    """Bounds of a cloud's disks and the level of a ground plane under it.
-
-    One O(n) pass; callers cache the result (see :meth:`Scene._extent`,
-    :meth:`pointviz.SurfelScene.extent`).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    radii : (n,) float or None
-        Disk radii: the bounds grow by the largest, the ground sinks by the 99th percentile.
-    up : (3,) float, unit
-
-    Returns
-    -------
-    lo, hi : (3,) float64
-        Axis-aligned bounds including the largest radius.
-    level : float
-        Height along ``up`` of the ground: the lowest point, ignoring the lowest
-        :data:`GROUND_OUTLIER_FRACTION` of a cloud with at least
-        :data:`GROUND_ROBUST_MIN_POINTS` points.
-    """
-    r = float(np.max(radii)) if radii is not None else 0.0
-    lo, hi = bounds(points)
-    lo, hi = lo - r, hi + r
-    h = dot3(points, up)
-    r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
-    low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
-           else h.min())
-    return lo, hi, float(low) - r99
-
-
 @dataclass
 class SceneObject:
     """One object of a scene: a surfel scene (or a mesh backend) and its material."""
@@ -459,7 +428,7 @@ class Scene:
                                 for z in (lo[2], hi[2])])
             ext = (lo, hi, float(np.min(corners @ self.up)))
         else:
-            ext = cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
+            ext = _extent_mod.cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
         cache[id(cloud)] = (cloud, ext)
         return ext
 

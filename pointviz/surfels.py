@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from . import extent as _extent_mod
 from .arrays import bounds
 from .errors import InputError
 
@@ -272,14 +273,12 @@ class SurfelScene:
 
     def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds of the disks and the ground level along ``up`` (see
-        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
-        from .scene import cloud_extent
-
         key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
         cache = self.__dict__.setdefault("_extents", {})
         if key not in cache:
-            cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+            cache[key] = _extent_mod.cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
         return cache[key]
 
     def trace_options(self, lod_pixels: float | None = None):

@@ -14,7 +14,7 @@ import pytest
 
 from pointviz import Camera, InputError, render, shapes 
 from pointviz.comparison import analytic, metrics 
-from pointviz.comparison.mesh import MeshGeometry 
+from pointviz.meshes import MeshGeometry 
 from pointviz.comparison.run import Settings, render_geometry 
 from pointviz.comparison.schema import SCHEMA, builtin_errors, validate 
 from pointviz.scene import Scene 

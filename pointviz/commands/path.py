@@ -10,8 +10,8 @@ on an existing cluster with ``--scheduler tcp://HOST:PORT``, or in this process 
 
 from __future__ import annotations
 
+from ..progress import ProgressBar
 from .common import (
-    ProgressBar,
     add_input_options,
     add_render_options,
     make_scene_and_camera,
