@@ -91,8 +91,8 @@ def sweeps(quick: bool):
 
 
 def _method_frame(method, cloud, camera, settings, depth):
-    from ..surfels import SurfelScene
     from ..reconstruct import ball_pivoting, poisson
+    from ..surfels import SurfelScene
 
     if method == "discs":
         return render_geometry(SurfelScene(cloud, interpolation="none"), camera, settings, 0.0)
