@@ -33,6 +33,7 @@ import numpy as np
 
 from .errors import CancelledError, InputError, PointvizError, require
 from .interrupt import stage
+from .settings import check_int
 
 #: Worker processes of the default LocalCluster (the machine this was written on has 2 cores).
 DEFAULT_WORKERS = 2
@@ -232,8 +233,7 @@ def _connect(scheduler, workers: int):
         raise InputError("scheduler: None renders in this process (render_path); a Dask render "
                          "needs 'local', a tcp://HOST:PORT address or a dask.distributed.Client")
     if isinstance(scheduler, str) and scheduler == "local":
-        if not (isinstance(workers, (int, np.integer)) and workers >= 1):
-            raise InputError(f"workers: expected a positive integer, got {workers!r}")
+        check_int(workers, "workers")
         cluster = distributed.LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=True,
             dashboard_address=":0", silence_logs=40)  # logging.ERROR

@@ -11,6 +11,7 @@ import numpy as np
 from . import _core, interrupt
 from .errors import CancelledError, InputError
 from .interrupt import stage
+from .settings import DEFAULTS, RenderSettings
 
 #: Nice increment of the tracer's threads in ``render(background=True)``: a GUI thread at normal
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
@@ -111,30 +112,11 @@ def camera_model(camera, origin) -> _core.CameraModel:
     return cm
 
 
-def _check_int(value, name, lo, hi):
-    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and lo <= value <= hi):
-        raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {value!r}")
-    return int(value)
-
-
-def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
-                         threads: int | None = None, lod_pixels: float = 1.0, **_ignored):
-    """The numeric options of :func:`render`, checked (InputError naming the bad one) and
-    normalised: ``(spp, reflections, seed, threads, lod_pixels)``. Callers with expensive work
-    before the render (the CLI: trees) check first."""
-    spp = _check_int(spp, "spp", 1, 4096)
-    reflections = _check_int(reflections, "reflections", 0, 16)
-    seed = _check_int(seed, "seed", 0, 2**63 - 1)
-    if threads is not None:
-        threads = _check_int(threads, "threads", 1, 1024)
-    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
-    return spp, reflections, seed, threads, float(lod_pixels)
-
-
-def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
-           lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise: bool | str = False,
+def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
+           reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
+           lod_pixels: float = DEFAULTS.lod_pixels, seed: int = DEFAULTS.seed,
+           threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
+           ground=DEFAULTS.ground, look=DEFAULTS.look, denoise: bool | str = DEFAULTS.denoise,
            background: bool = False) -> Frame:
     """Ray trace a frame.
 
@@ -183,7 +165,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         raise InputError("camera: expected a pointviz.Camera")
     from .denoise import check_available, denoise_quality
 
-    quality = denoise_quality(denoise)
+    opts = RenderSettings(shadows=shadows, reflections=reflections, spp=spp,
+                          lod_pixels=lod_pixels, seed=seed, threads=threads, ground=ground,
+                          look=look, denoise=denoise)
+    quality = denoise_quality(opts.denoise)
     if quality is not None:
         check_available()  # before the expensive part
     kw = {} if ground is None else {"ground": ground}
@@ -195,8 +180,9 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
             scene = scene.with_look(look)
         if ground is not None:
             scene = scene.with_ground(ground)
-    spp, reflections, seed, threads, lod_pixels = check_render_options(
-        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels)
+    spp, reflections, seed, threads, lod_pixels = (
+        opts.spp, opts.reflections, opts.seed, opts.threads, opts.lod_pixels)
+    shadows = opts.shadows
 
     rs, origin = scene.to_core(camera, lod_pixels)
     settings = _core.RenderSettings()

@@ -23,6 +23,7 @@ from . import _core
 from . import extent as _extent_mod
 from .arrays import bounds
 from .errors import InputError
+from .settings import INTERPOLATIONS, check_int
 
 #: The paper's traversal variants, as knob settings.
 VARIANTS = {
@@ -33,7 +34,6 @@ VARIANTS = {
     "full": {"lod": True, "cull": True, "box_depth": "auto"},
 }
 
-INTERPOLATIONS = ("none", "paper", "smooth")
 
 #: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
 DEFAULT_INTERPOLATION = "smooth"
@@ -383,6 +383,4 @@ def _pixel_angle(pixel_angle, camera) -> float:
 def _check_threads(threads):
     if threads is None:
         return None
-    if not (isinstance(threads, (int, np.integer)) and threads >= 1):
-        raise InputError(f"threads: must be a positive integer or None, got {threads!r}")
-    return int(threads)
+    return check_int(threads, "threads", note=" or None")

@@ -4,7 +4,6 @@ or on a Dask cluster (:mod:`pointviz.distributed`); the frames are byte-identica
 from __future__ import annotations
 
 import hashlib
-import inspect
 import os
 import time
 from pathlib import Path
@@ -15,6 +14,7 @@ from ..errors import CancelledError, FileFormatError, InputError
 from ..frames import frame_png, is_complete_png
 from ..interrupt import stage
 from ..progress import ProgressBar
+from ..settings import RenderSettings
 from .camera_path import CameraPath
 from .keyframes import check_fps
 
@@ -27,25 +27,14 @@ FRAME_GLOB = "frame_*.png"
 MANIFEST_NAME = "pointviz_path.json"
 MANIFEST_FORMAT = "pointviz.path_render"
 MANIFEST_VERSION = 1
-#: Render settings recorded in the manifest (``threads`` is not: results never depend on it).
-_IMAGE_SETTINGS = ("shadows", "reflections", "spp", "lod_pixels", "seed", "ground")
 
 
 def _settings_of(render_kwargs: dict) -> dict:
-    """The image-affecting render settings, defaults filled in (so explicit defaults match)."""
-    from ..rendering import render
-
-    defaults = {k: p.default for k, p in inspect.signature(render).parameters.items()
-                if p.default is not inspect.Parameter.empty}
-    unknown = set(render_kwargs) - set(defaults) - {"progress", "cancel"}
-    if unknown:
-        raise InputError(f"render_path: unknown render option(s) {sorted(unknown)}")
+    """Every image-affecting render setting, defaults filled in (so explicit defaults match)."""
     if "progress" in render_kwargs or "cancel" in render_kwargs:
         raise InputError("render_path: progress and cancel apply to the whole path; pass them "
                          "as render_path(progress=..., cancel=...)")
-    merged = {k: render_kwargs.get(k, defaults[k]) for k in _IMAGE_SETTINGS}
-    return {k: (v if isinstance(v, (bool, int, float, str, type(None))) else repr(v))
-            for k, v in merged.items()}
+    return RenderSettings.from_kwargs(render_kwargs, "render_path").manifest()
 
 
 def _path_cameras(path: Any, width: int | None, height: int | None) -> tuple[list[dict], float]:
