@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ from ..camera import (
     view_basis,
 )
 from ..errors import InputError
+from ..frozen import ArrayValue, set_fields
 from .curves import (
     CatmullRom,
     TimeMap,
@@ -39,7 +41,8 @@ DEFAULT_FPS = 30.0
 FRAME_COUNT_EPS = 1e-9
 
 
-class Keyframe:
+@dataclass(frozen=True, eq=False, repr=False)
+class Keyframe(ArrayValue):
     """One camera pose at a time.
 
     Parameters
@@ -52,22 +55,17 @@ class Keyframe:
         Seconds.
     """
 
-    __slots__ = ("eye", "target", "up", "fov_deg", "time")
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray = DEFAULT_UP
+    fov_deg: float = DEFAULT_FOV_DEG
+    time: float = 0.0
 
-    def __init__(self, eye: Any, target: Any, up: Any = DEFAULT_UP,
-                 fov_deg: float = DEFAULT_FOV_DEG, time: float = 0.0) -> None:
-        eye, target, up = _vec3(eye, "eye"), _vec3(target, "target"), _vec3(up, "up")
+    def __post_init__(self) -> None:
+        eye, target, up = _vec3(self.eye, "eye"), _vec3(self.target, "target"), _vec3(self.up, "up")
         view_basis(eye, target, up)
-        for arr in (eye, target, up):
-            arr.setflags(write=False)
-        object.__setattr__(self, "eye", eye)
-        object.__setattr__(self, "target", target)
-        object.__setattr__(self, "up", up)
-        object.__setattr__(self, "fov_deg", _fov(fov_deg))
-        object.__setattr__(self, "time", _real(time, "time"))
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        raise AttributeError("Keyframe is immutable; use replace()")
+        set_fields(self, eye=eye, target=target, up=up, fov_deg=_fov(self.fov_deg),
+                   time=_real(self.time, "time"))
 
     @classmethod
     def from_camera(cls, camera: Camera, time: float = 0.0) -> Keyframe:
@@ -76,14 +74,6 @@ class Keyframe:
 
     def to_camera(self, width: int = DEFAULT_WIDTH, height: int = DEFAULT_HEIGHT) -> Camera:
         return Camera(self.eye, self.target, self.up, self.fov_deg, width, height)
-
-    def replace(self, **changes: Any) -> Keyframe:
-        fields = {name: getattr(self, name) for name in self.__slots__}
-        unknown = set(changes) - set(fields)
-        if unknown:
-            raise TypeError(f"Keyframe.replace() got unexpected field(s) {sorted(unknown)}")
-        fields.update(changes)
-        return Keyframe(**fields)
 
     def to_dict(self) -> dict[str, Any]:
         return {"eye": self.eye.tolist(), "target": self.target.tolist(), "up": self.up.tolist(),
@@ -107,29 +97,6 @@ class Keyframe:
         except InputError as exc:
             msg = str(exc)
             raise InputError(msg if msg.startswith(where) else f"{where}: {msg}") from exc
-
-    def _key(self) -> tuple:
-        return (tuple(self.eye.tolist()), tuple(self.target.tolist()), tuple(self.up.tolist()),
-                self.fov_deg, self.time)
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Keyframe):
-            return NotImplemented
-        return self._key() == other._key()
-
-    def __hash__(self) -> int:
-        return hash(self._key())
-
-    def __repr__(self) -> str:
-        def vec(a: np.ndarray) -> str:
-            return "(" + ", ".join(f"{x:.6g}" for x in a) + ")"
-
-        return (f"Keyframe(eye={vec(self.eye)}, target={vec(self.target)}, up={vec(self.up)}, "
-                f"fov_deg={self.fov_deg:.6g}, time={self.time:.6g})")
-
-    def __reduce__(self):
-        return (Keyframe, (self.eye.copy(), self.target.copy(), self.up.copy(), self.fov_deg,
-                           self.time))
 
 
 def rotation_of(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
