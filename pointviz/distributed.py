@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import CancelledError, InputError, PointvizError, require
+from .geometry import Geometry
 from .interrupt import stage
 from .settings import check_int
 
@@ -179,7 +180,7 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
     objects = []
     for i, obj in enumerate(scene.objects):
         g = obj.geometry
-        if isinstance(g, SurfelScene) or hasattr(g, "points"):
+        if isinstance(g, SurfelScene) or not isinstance(g, Geometry):  # surfels or a cloud
             ss = scene.surfel_scene(i)
             cloud = ss.cloud
             _ = cloud.normals, cloud.radii  # estimate once, on the client

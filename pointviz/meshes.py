@@ -3,8 +3,8 @@ callback-geometry interface, so a mesh renders with exactly the camera, lights, 
 shading of the surfel renderer (``pointviz.render(Scene([MeshGeometry(...)]), camera)``).
 
 The renderer calls :meth:`MeshGeometry.intersect` and :meth:`MeshGeometry.occluded` with rays in
-the scene's local frame (world minus the origin given to :meth:`MeshGeometry.set_origin`); the
-Embree scene is built there, in float32, once per origin.
+the scene's local frame (world minus the origin the scene passes to :meth:`MeshGeometry.add_to`);
+the Embree scene is built there, in float32, once per origin (:class:`LocalMesh`).
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ from .errors import InputError, require
 #: It is embreex's own default and far beyond any scene (pointviz re-centres scenes on the origin).
 EMBREE_FAR = 1e37
 
+#: Frames (origins) whose Embree scene a mesh keeps: a render and the mesh's own frame.
+MESH_FRAMES_KEPT = 2
 #: Colour of a mesh without vertex colours: white, so the material's base colour shows, exactly
 #: as for a cloud without colours.
 DEFAULT_COLOR = (1.0, 1.0, 1.0)
@@ -31,7 +33,7 @@ class MeshGeometry:
     Parameters
     ----------
     vertices : (v, 3) array_like of float
-        Positions (world coordinates, float64 kept until :meth:`set_origin`).
+        Positions (world coordinates, float64; each frame of :meth:`local` is float32).
     faces : (f, 3) array_like of int
         Vertex indices, counter-clockwise seen from outside (the winding does not matter for
         shading: the renderer turns normals toward the ray).
@@ -85,9 +87,7 @@ class MeshGeometry:
         edges = (np.linalg.norm(b - a, axis=1) + np.linalg.norm(c3 - b, axis=1)
                  + np.linalg.norm(a - c3, axis=1)) / 3.0
         self.face_scale = edges.astype(np.float32)
-        self._origin = None
-        self._scene = None
-        self._mesh = None
+        self._frames: dict[bytes, LocalMesh] = {}
         self.build_seconds = 0.0
 
     # -- the callback-geometry protocol ------------------------------------------------------
@@ -96,29 +96,90 @@ class MeshGeometry:
         used = self.vertices[np.unique(self.faces)]
         return used.min(axis=0), used.max(axis=0)
 
-    def set_origin(self, origin) -> None:
-        """Build the Embree scene in the frame centred on ``origin`` (float64 (3,)); a no-op when
-        the origin has not changed. ``build_seconds`` records the BVH build."""
+    def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds and the ground level along unit ``up``: the lowest corner of the bounds
+        (see :class:`pointviz.geometry.Geometry`)."""
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in self.bounds())
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        return lo, hi, float(np.min(corners @ np.asarray(up, dtype=np.float64)))
+
+    def local(self, origin=None) -> LocalMesh:
+        """The mesh in the frame centred on ``origin`` (default: the centre of its bounds),
+        with its Embree scene: built once per origin and kept (the last MESH_FRAMES_KEPT)."""
+        if origin is None:
+            lo, hi = self.bounds()
+            origin = 0.5 * (lo + hi)
         origin = np.asarray(origin, dtype=np.float64).reshape(3)
-        if self._scene is not None and np.array_equal(origin, self._origin):
-            return
+        key = origin.tobytes()
+        hit = self._frames.pop(key, None)
+        if hit is None:
+            hit = LocalMesh(self, origin)
+            self.build_seconds = hit.build_seconds
+        self._frames[key] = hit  # most recent last
+        while len(self._frames) > MESH_FRAMES_KEPT:
+            self._frames.pop(next(iter(self._frames)))
+        return hit
+
+    def add_to(self, render_scene, origin, material, lod_pixels: float) -> None:
+        """Add the mesh (as callbacks of its frame at ``origin``) to a core RenderScene."""
+        render_scene.add_callback(self.local(origin), material)
+
+    def intersect(self, rays):
+        """Closest hits of (n, 8) rays in the frame of :meth:`local` ``()``: see
+        :meth:`LocalMesh.intersect`."""
+        return self.local().intersect(rays)
+
+    def occluded(self, rays) -> np.ndarray:
+        """Any hit of (n, 8) rays in the frame of :meth:`local` ``()``."""
+        return self.local().occluded(rays)
+
+    # -- convenience -------------------------------------------------------------------------
+    def cast_rays(self, rays) -> dict:
+        """World-space closest hits for (n, 6) rays (origin, direction): ``t_hit``, ``normals``,
+        ``positions`` (float64), like :meth:`pointviz.SurfelScene.cast_rays`."""
+        r = np.asarray(rays, dtype=np.float64)
+        if r.ndim != 2 or r.shape[1] != 6:
+            raise InputError(f"rays: expected (n, 6), got {r.shape}")
+        frame = self.local()
+        dn = np.linalg.norm(r[:, 3:], axis=1)
+        packed = np.zeros((len(r), 8), np.float32)
+        packed[:, :3] = r[:, :3] - frame.origin
+        packed[:, 3:6] = r[:, 3:] / dn[:, None]
+        packed[:, 7] = np.inf
+        t, n, c, rad = frame.intersect(packed)
+        t = t / dn.astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            pos = r[:, :3] + r[:, 3:] * t[:, None].astype(np.float64)
+        pos[~np.isfinite(t)] = np.inf
+        return {"t_hit": t, "normals": n, "colors": c, "radii": rad, "positions": pos}
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    def __repr__(self) -> str:
+        return (f"MeshGeometry({len(self.vertices)} vertices, {len(self.faces)} faces, "
+                f"{'smooth' if self.smooth else 'flat'})")
+
+
+class LocalMesh:
+    """A :class:`MeshGeometry` in the frame centred on ``origin``, with its Embree scene (built
+    here, in float32): the callback geometry the core renderer queries. Immutable."""
+
+    def __init__(self, mesh: MeshGeometry, origin: np.ndarray) -> None:
+        self.mesh = mesh
+        self.origin = origin
         rtcore_scene = require("embreex.rtcore_scene", "compare")
         mesh_construction = require("embreex.mesh_construction", "compare")
         t0 = time.perf_counter()
         scene = rtcore_scene.EmbreeScene()
-        local = np.ascontiguousarray(self.vertices - origin, dtype=np.float32)
-        self._mesh = mesh_construction.TriangleMesh(scene, local, self.faces)
+        local = np.ascontiguousarray(mesh.vertices - origin, dtype=np.float32)
+        self._triangles = mesh_construction.TriangleMesh(scene, local, mesh.faces)
         # embreex commits (builds the BVH) on the first query: make that happen here
         scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
         self.build_seconds = time.perf_counter() - t0
         self._scene = scene
-        self._origin = origin
-
-    def _ready(self):
-        if self._scene is None:
-            lo, hi = self.bounds()
-            self.set_origin(0.5 * (lo + hi))
-        return self._scene
 
     @staticmethod
     def _split(rays):
@@ -146,7 +207,8 @@ class MeshGeometry:
             ``t`` (n,) (inf on a miss), ``normals`` (n, 3) unit, ``colors`` (n, 3) sRGB,
             ``radii`` (n,) local size scale.
         """
-        scene = self._ready()
+        scene = self._scene
+        m = self.mesh
         o, d, tmin, far = self._split(rays)
         n = len(o)
         t = np.full(n, np.inf, np.float32)
@@ -165,25 +227,25 @@ class MeshGeometry:
             u = res["u"][hit][:, None]
             v = res["v"][hit][:, None]
             w = 1.0 - u - v
-            tri = self.faces[prim]
-            if self.smooth:
-                vn = self.vertex_normals
+            tri = m.faces[prim]
+            if m.smooth:
+                vn = m.vertex_normals
                 nn = w * vn[tri[:, 0]] + u * vn[tri[:, 1]] + v * vn[tri[:, 2]]
                 ln = np.linalg.norm(nn, axis=1, keepdims=True)
                 bad = ~(ln[:, 0] > 1e-12)
-                nn = np.where(bad[:, None], self.face_normals[prim], nn / np.maximum(ln, 1e-30))
+                nn = np.where(bad[:, None], m.face_normals[prim], nn / np.maximum(ln, 1e-30))
             else:
-                nn = self.face_normals[prim]
+                nn = m.face_normals[prim]
             normals[idx] = nn
-            if self.vertex_colors is not None:
-                vc = self.vertex_colors
+            if m.vertex_colors is not None:
+                vc = m.vertex_colors
                 colors[idx] = w * vc[tri[:, 0]] + u * vc[tri[:, 1]] + v * vc[tri[:, 2]]
-            radii[idx] = self.face_scale[prim]
+            radii[idx] = m.face_scale[prim]
         return t, normals, colors, radii
 
     def occluded(self, rays) -> np.ndarray:
         """Any hit in each ray's [tmin, tmax]: (n,) bool, C-contiguous."""
-        scene = self._ready()
+        scene = self._scene
         o, d, _, far = self._split(rays)
         out = np.zeros(len(o), dtype=bool)
         live = far > 0
@@ -192,31 +254,3 @@ class MeshGeometry:
                             query="OCCLUDED")
             out[live] = np.asarray(res) >= 0
         return out
-
-    # -- convenience -------------------------------------------------------------------------
-    def cast_rays(self, rays) -> dict:
-        """World-space closest hits for (n, 6) rays (origin, direction): ``t_hit``, ``normals``,
-        ``positions`` (float64), like :meth:`pointviz.SurfelScene.cast_rays`."""
-        r = np.asarray(rays, dtype=np.float64)
-        if r.ndim != 2 or r.shape[1] != 6:
-            raise InputError(f"rays: expected (n, 6), got {r.shape}")
-        self._ready()
-        dn = np.linalg.norm(r[:, 3:], axis=1)
-        packed = np.zeros((len(r), 8), np.float32)
-        packed[:, :3] = r[:, :3] - self._origin
-        packed[:, 3:6] = r[:, 3:] / dn[:, None]
-        packed[:, 7] = np.inf
-        t, n, c, rad = self.intersect(packed)
-        t = t / dn.astype(np.float32)
-        with np.errstate(invalid="ignore"):
-            pos = r[:, :3] + r[:, 3:] * t[:, None].astype(np.float64)
-        pos[~np.isfinite(t)] = np.inf
-        return {"t_hit": t, "normals": n, "colors": c, "radii": rad, "positions": pos}
-
-    @property
-    def n_faces(self) -> int:
-        return len(self.faces)
-
-    def __repr__(self) -> str:
-        return (f"MeshGeometry({len(self.vertices)} vertices, {len(self.faces)} faces, "
-                f"{'smooth' if self.smooth else 'flat'})")

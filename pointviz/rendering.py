@@ -10,6 +10,7 @@ import numpy as np
 
 from . import _core, interrupt
 from .errors import CancelledError, InputError
+from .geometry import Geometry
 from .interrupt import stage
 from .settings import DEFAULTS, RenderSettings
 
@@ -92,8 +93,7 @@ def as_scene(scene_or_cloud, **scene_kw):
 
     if isinstance(scene_or_cloud, Scene):
         return scene_or_cloud
-    if hasattr(scene_or_cloud, "points") or hasattr(scene_or_cloud, "cast_rays") or isinstance(
-            scene_or_cloud, (list, tuple)):
+    if isinstance(scene_or_cloud, (Geometry, list, tuple)) or hasattr(scene_or_cloud, "points"):
         return Scene(scene_or_cloud, **scene_kw)
     raise InputError(
         f"scene_or_cloud: expected a PointCloud, SurfelScene or Scene, got {type(scene_or_cloud).__name__}")

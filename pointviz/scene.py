@@ -19,6 +19,7 @@ from .extent import (  # noqa: F401 - public here too
     GROUND_ROBUST_MIN_POINTS,
     cloud_extent,
 )
+from .geometry import Geometry
 
 _Y_UP = (0.0, 1.0, 0.0)
 
@@ -362,7 +363,7 @@ class Scene:
         for c, m in zip(clouds, materials):
             if not isinstance(m, Material):
                 raise InputError(f"materials: expected Material, got {type(m).__name__}")
-            if not (isinstance(c, SurfelScene) or hasattr(c, "points") or hasattr(c, "intersect")):
+            if not (isinstance(c, Geometry) or hasattr(c, "points")):
                 raise InputError(f"clouds: cannot render a {type(c).__name__}")
             self.objects.append(SceneObject(c, m))
         self.lights = None if lights is None else list(lights)
@@ -400,14 +401,19 @@ class Scene:
             self.sky = {"zenith": c, "horizon": c, "below": c}
 
     # -- geometry -----------------------------------------------------------------------------
-    def surfel_scene(self, i: int):
-        """The SurfelScene of object i, built on first use (a cloud's tree is built once)."""
+    def geometry(self, i: int) -> Geometry:
+        """The :class:`~pointviz.geometry.Geometry` of object i: a cloud becomes a SurfelScene
+        on first use (its tree is built once)."""
         from .surfels import SurfelScene
 
         obj = self.objects[i]
-        if not isinstance(obj.geometry, SurfelScene) and hasattr(obj.geometry, "points"):
+        if not isinstance(obj.geometry, Geometry):
             obj.geometry = SurfelScene(obj.geometry, **self._scene_options)
         return obj.geometry
+
+    def surfel_scene(self, i: int):
+        """The SurfelScene of object i, built on first use (a mesh object is returned as is)."""
+        return self.geometry(i)
 
     def _extent(self, obj) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds (with disk radii) and ground level of one object, computed once per geometry:
@@ -420,15 +426,9 @@ class Scene:
         hit = cache.get(id(cloud))
         if hit is not None and hit[0] is cloud:  # also when the cloud has become a SurfelScene
             return hit[1]
-        if hasattr(g, "extent") and hasattr(g, "tree"):  # a SurfelScene
+        if isinstance(g, Geometry):  # a SurfelScene keeps its own, a mesh's is cheap
             return g.extent(self.up)
-        if getattr(cloud, "points", None) is None:
-            lo, hi = (np.asarray(v, dtype=np.float64) for v in g.bounds())
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                for z in (lo[2], hi[2])])
-            ext = (lo, hi, float(np.min(corners @ self.up)))
-        else:
-            ext = _extent_mod.cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
+        ext = _extent_mod.cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
         cache[id(cloud)] = (cloud, ext)
         return ext
 
@@ -463,14 +463,7 @@ class Scene:
         rs = _core.RenderScene()
         rs.scale = float(max(np.linalg.norm(hi - lo) * 0.5, 1e-12))
         for i, obj in enumerate(self.objects):
-            g = obj.geometry
-            if hasattr(g, "intersect") and hasattr(g, "occluded") and not hasattr(g, "points"):
-                g.set_origin(origin)
-                rs.add_callback(g, obj.material.to_core())
-                continue
-            ss = self.surfel_scene(i)
-            offset = tuple(float(v) for v in (origin - ss.origin))
-            rs.add_surfels(ss.tree, ss.trace_options(lod_pixels), offset, obj.material.to_core())
+            self.geometry(i).add_to(rs, origin, obj.material.to_core(), lod_pixels)
         if self.ground is not None:
             rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
         lights = self.lights if self.lights is not None else self.look.lights(camera, self.up)

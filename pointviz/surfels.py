@@ -281,6 +281,12 @@ class SurfelScene:
             cache[key] = _extent_mod.cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
         return cache[key]
 
+    def add_to(self, render_scene, origin, material, lod_pixels: float) -> None:
+        """Add this tree to a core RenderScene whose frame is centred on ``origin`` (see
+        :class:`pointviz.geometry.Geometry`)."""
+        offset = tuple(float(v) for v in (np.asarray(origin, dtype=np.float64) - self.origin))
+        render_scene.add_surfels(self._tree, self.trace_options(lod_pixels), offset, material)
+
     def trace_options(self, lod_pixels: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold."""
         o = _core.TraceOptions()
