@@ -54,7 +54,7 @@ def check_int(value: Any, name: str, lo: int = 1, hi: int | None = None, note: s
 def setting(default: Any, help: str, *, lo: float | None = None, hi: float | None = None,
             choices: tuple | None = None, kind: type = int, optional: bool = False,
             flag: str | None = None, metavar: str | None = None, cli: bool = True,
-            cli_default: Any = MISSING) -> Any:
+            cli_default: Any = MISSING, objects: str | None = None) -> Any:
     """One render setting: a dataclass field whose metadata says how to check and offer it.
 
     Parameters
@@ -76,10 +76,13 @@ def setting(default: Any, help: str, *, lo: float | None = None, hi: float | Non
         Offered on the command line.
     cli_default : optional
         The command line's default when it differs from the library's, for a stated reason.
+    objects : str, optional
+        The type whose objects are accepted besides the named choices (a Material ground, a
+        Look, a Denoiser), checked where they are used.
     """
     meta = {"help": help, "lo": lo, "hi": hi, "choices": choices, "kind": kind,
             "optional": optional, "flag": flag, "metavar": metavar, "cli": cli,
-            "cli_default": cli_default}
+            "cli_default": cli_default, "objects": objects}
     return field(default=default, metadata=meta)
 
 
@@ -97,17 +100,18 @@ class RenderSettings:
     seed: int = setting(0, "seed of the sampling pattern", lo=0, hi=MAX_SEED)
     threads: int | None = setting(None, "tracer threads (default: all cores)", lo=1, hi=1024,
                                   optional=True)
-    # ground and look: also a Material or a Look object (checked by its own type)
     ground: str | None = setting(
         None, "ground plane under the cloud (default: the scene's; auto for a cloud)",
-        choices=GROUNDS, kind=str, optional=True)
+        choices=GROUNDS, kind=str, optional=True, objects="pointviz.scene.Material")
     look: str | None = setting(
         None, "lighting: studio (key, fill, sky occlusion, backdrop), outdoor (sun and sky), "
         "flat (colours as scanned); auto: outdoor for terrain tiles, studio for objects "
-        "(default: the scene's; auto for a cloud)", choices=LOOKS, kind=str, optional=True)
+        "(default: the scene's; auto for a cloud)", choices=LOOKS, kind=str, optional=True,
+        objects="pointviz.scene.Look")
     denoise: bool | str = setting(
         False, "denoise with Open Image Denoise (the 'denoise' extra; True or a quality)",
         choices=(True, False, *DENOISE_QUALITIES), kind=bool, flag="--no-denoise",
+        objects="pointviz.denoise.Denoiser",
         # final frames from the command line are denoised when the extra is installed (a
         # one-line note says how to get it otherwise)
         cli_default=True)
@@ -152,13 +156,15 @@ def _check(f, value: Any) -> Any:
     if value is None and m["optional"]:
         return None
     kind = m["kind"]
-    if m["choices"] is not None and (isinstance(value, str) or kind is bool):
+    named = isinstance(value, (str, bool, np.bool_))
+    if m["choices"] is not None and (named or not m["objects"]):
         if not any(value is c or (isinstance(c, str) and value == c) for c in m["choices"]):
+            also = f" or a {m['objects']}" if m["objects"] else ""
             raise InputError(f"{f.name}: expected one of "
-                             f"{', '.join(map(str, m['choices']))}, got {value!r}")
+                             f"{', '.join(map(str, m['choices']))}{also}, got {value!r}")
         return value
-    if kind is str:
-        return value  # an object for a named choice (a Material ground, a Look): checked by it
+    if m["objects"]:
+        return value  # a Material ground, a Look, a Denoiser: checked where it is used
     if kind is bool:
         if not isinstance(value, (bool, np.bool_)):
             raise InputError(f"{f.name}: expected True or False, got {value!r}")

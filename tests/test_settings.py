@@ -122,6 +122,8 @@ def _bad_values(f):
         out.append("not-a-choice")
     if not m["optional"]:
         out.append(None)
+    if m["objects"]:  # other objects are checked by their own type where they are used
+        out = [v for v in out if isinstance(v, str)]
     return out
 
 
