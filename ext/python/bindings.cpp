@@ -444,7 +444,10 @@ NB_MODULE(_core, m) {
         .def_rw("tan_half", &CameraModel::tan_half)
         .def_rw("width", &CameraModel::width)
         .def_rw("height", &CameraModel::height)
-        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle);
+        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle)
+        .def("direction", &CameraModel::direction, "col"_a, "row"_a,
+             "Unit direction of the primary ray through continuous pixel (col, row) (the "
+             "renderer's ray model; pointviz.Camera.rays is tested against it).");
 
     nb::class_<Material>(m, "Material")
         .def(nb::init<>())

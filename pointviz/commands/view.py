@@ -11,7 +11,7 @@ import os
 import sys
 
 from ..interrupt import cancelled, check
-from .common import add_input_options, add_render_options, denoise_default, make_scene_and_camera
+from .common import add_input_options, add_render_options, make_scene_and_camera, render_kwargs
 
 #: Leave the process without Python's teardown once the Open3D window has closed and every
 #: output is written: Open3D 0.20's GUI segfaults or hangs now and then while its static
@@ -45,9 +45,7 @@ def run(args) -> int:
     from ..viewer.model import DEFAULT_PREVIEW_MAX_POINTS
 
     scene, camera = make_scene_and_camera(args, prepare=False)
-    overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
-                 "lod_pixels": args.lod, "max_error": args.max_error, "seed": args.seed, "threads": args.threads,
-                 "denoise": denoise_default(args),
+    overrides = {**render_kwargs(args),
                  "color_mode": args.color_by, "ground": None,  # the scene already has --ground
                  "width": args.width or 0, "height": args.height or 0,
                  "preview_max_points": args.preview_points or DEFAULT_PREVIEW_MAX_POINTS}

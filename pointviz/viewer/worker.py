@@ -181,8 +181,8 @@ def mesh_scene_of(scene):
     (Scene, str)
         The mesh scene (same materials, lights, ground, sky) and a note for the status bar.
     """
-    from ..comparison import MeshGeometry
-    from ..comparison.reconstruct import poisson
+    from ..meshes import MeshGeometry
+    from ..reconstruct import poisson
     from ..scene import Scene
 
     geoms, faces, secs = [], 0, 0.0
