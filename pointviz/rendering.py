@@ -135,7 +135,8 @@ def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
            cancel=None, ground=None, look=None, denoise: bool | str = False,
-           background: bool = False) -> Frame:
+           background: bool = False, sample_offset: int = 0,
+           sequence_spp: int | None = None) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -172,6 +173,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         "high" quality. The tracer's colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
+    sample_offset, sequence_spp : int
+        Progressive rendering: trace samples ``sample_offset .. sample_offset + spp - 1`` of a
+        sequence of ``sequence_spp`` samples per pixel (default ``spp``). The mean of the frames
+        with offsets 0, spp, 2 spp, ... (same seed) is the frame rendered with all those samples
+        at once, up to float rounding.
 
     Returns
     -------
@@ -205,6 +211,9 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     settings.shadows = bool(shadows)
     settings.lod_pixels = float(lod_pixels)
     settings.seed = seed
+    settings.sample_offset = _check_int(sample_offset, "sample_offset", 0, 2**31 - 1)
+    settings.sequence_spp = _check_int(spp if sequence_spp is None else sequence_spp,
+                                       "sequence_spp", 1, 2**31 - 1)
     settings.threads = threads or 0
 
     is_cancelled = _cancel_check(cancel)

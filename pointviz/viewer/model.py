@@ -207,6 +207,8 @@ def render_scene(scene, settings: ViewerSettings):
     for i in range(len(scene.objects)):  # build the trees once, on the shared objects
         scene.surfel_scene(i)
     out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
+    if scene.lights is None and scene.look.key <= 0:  # a look without a key light ("flat")
+        return out
     angle = scene.look.key_angle_deg
     for light in scene.lights or ():
         if isinstance(light, DirectionalLight):
