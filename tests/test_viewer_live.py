@@ -74,10 +74,11 @@ def test_bad_progressive_options_are_named(kw):
 # ------------------------------------------------------------------ live renderer
 
 
-def collect(**kw):
+def collect(scene, **kw):
+    """A live renderer whose settings are render() options for ``scene``, and its outputs."""
     frames: queue.Queue = queue.Queue()
     errors: queue.Queue = queue.Queue()
-    lr = live.LiveRenderer(frames.put, errors.put, **kw)
+    lr = live.LiveRenderer(frames.put, lambda opts: (scene, opts), errors.put, **kw)
     return lr, frames, errors
 
 
@@ -90,9 +91,9 @@ def next_frame(frames, pred=lambda f: True):
 
 def test_live_frames_match_direct_renders():
     scene, cam = small_scene(), camera(64, 48)
-    lr, frames, errors = collect(threads=2, denoise=False)
+    lr, frames, errors = collect(scene, threads=2, denoise=False)
     try:
-        lr.update(cam, scene, dict(OPTS))
+        lr.update(cam, dict(OPTS))
         moving = next_frame(frames)
         assert moving.moving and moving.spp == 1
         direct = render(scene, moving.camera, spp=1,
@@ -121,7 +122,7 @@ class BlockingRender:
         self.cancelled = threading.Event()
 
     def __call__(self, scene, cam, cancel=None, **kw):
-        if self.block(cam):
+        if self.block(cam, kw):
             self.started.set()
             if not cancel.wait(FRAME_TIMEOUT_S):
                 raise AssertionError("the blocked frame was never cancelled")
@@ -134,12 +135,12 @@ def test_a_new_camera_cancels_the_stale_frame():
     scene = small_scene()
     a = camera(64, 48)
     b = live.orbit_camera(a, (0, 0, 0), (0, 1, 0), 0.5)
-    fake = BlockingRender(lambda cam: np.array_equal(cam.eye, a.eye))
-    lr, frames, errors = collect(render_fn=fake, threads=2, denoise=False)
+    fake = BlockingRender(lambda cam, kw: np.array_equal(cam.eye, a.eye))
+    lr, frames, errors = collect(scene, render_fn=fake, threads=2, denoise=False)
     try:
-        lr.update(a, scene, dict(OPTS))
+        lr.update(a, dict(OPTS))
         assert fake.started.wait(FRAME_TIMEOUT_S)
-        gen_b = lr.update(b, scene, dict(OPTS))
+        gen_b = lr.update(b, dict(OPTS))
         assert fake.cancelled.wait(FRAME_TIMEOUT_S)
         f = next_frame(frames)
         assert f.generation == gen_b and np.array_equal(f.camera.eye, b.eye)
@@ -149,10 +150,29 @@ def test_a_new_camera_cancels_the_stale_frame():
     assert errors.empty()
 
 
+def test_a_new_camera_cancels_a_still_pass_and_shows_a_moving_frame():
+    scene = small_scene()
+    a = camera(64, 48)
+    b = live.orbit_camera(a, (0, 0, 0), (0, 1, 0), 0.5)
+    fake = BlockingRender(lambda cam, kw: "sample_offset" in kw)  # every still pass blocks
+    lr, frames, errors = collect(scene, render_fn=fake, threads=2, denoise=False)
+    try:
+        lr.update(a, dict(OPTS))
+        assert next_frame(frames).moving
+        assert fake.started.wait(FRAME_TIMEOUT_S)  # a's still pass is in flight
+        gen_b = lr.update(b, dict(OPTS))
+        assert fake.cancelled.wait(FRAME_TIMEOUT_S)
+        f = next_frame(frames)
+        assert f.moving and f.generation == gen_b
+    finally:
+        assert lr.shutdown()
+    assert errors.empty()
+
+
 def test_shutdown_mid_frame_ends_the_worker():
-    fake = BlockingRender(lambda cam: True)
-    lr, frames, errors = collect(render_fn=fake, threads=2)
-    lr.update(camera(), small_scene(), dict(OPTS))
+    fake = BlockingRender(lambda cam, kw: True)
+    lr, frames, errors = collect(small_scene(), render_fn=fake, threads=2)
+    lr.update(camera(), dict(OPTS))
     assert fake.started.wait(FRAME_TIMEOUT_S)
     assert lr.thread.is_alive()
     assert lr.shutdown(timeout=FRAME_TIMEOUT_S)
@@ -169,12 +189,12 @@ def test_render_errors_are_reported_and_the_loop_goes_on():
             raise ValueError("boom")
         return render(sc, cam, **kw)
 
-    lr, frames, errors = collect(render_fn=failing, threads=2, denoise=False)
+    lr, frames, errors = collect(scene, render_fn=failing, threads=2, denoise=False)
     try:
-        lr.update(bad, scene, dict(OPTS))
+        lr.update(bad, dict(OPTS))
         assert "boom" in str(errors.get(timeout=FRAME_TIMEOUT_S))
         good = live.orbit_camera(bad, (0, 0, 0), (0, 1, 0), 1.0)
-        lr.update(good, scene, dict(OPTS))
+        lr.update(good, dict(OPTS))
         assert np.array_equal(next_frame(frames).camera.eye, good.eye)
     finally:
         assert lr.shutdown()
@@ -182,14 +202,14 @@ def test_render_errors_are_reported_and_the_loop_goes_on():
 
 def test_update_with_the_same_request_does_not_restart():
     scene, cam = small_scene(), camera()
-    fake = BlockingRender(lambda c: True)
-    lr, _, _ = collect(render_fn=fake, threads=2)
+    fake = BlockingRender(lambda cam, kw: True)
+    lr, _, _ = collect(scene, render_fn=fake, threads=2)
     try:
-        g = lr.update(cam, scene, dict(OPTS))
+        g = lr.update(cam, dict(OPTS))
         same = Camera(cam.eye.copy(), cam.target.copy(), cam.up.copy(), cam.fov_deg,
                       cam.width, cam.height)
-        assert lr.update(same, scene, dict(OPTS)) == g
-        assert lr.update(cam, scene, dict(OPTS, shadows=False)) == g + 1
+        assert lr.update(same, dict(OPTS)) == g
+        assert lr.update(cam, dict(OPTS, shadows=False)) == g + 1
     finally:
         assert lr.shutdown()
 

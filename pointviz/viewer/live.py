@@ -7,7 +7,9 @@ resolution in passes that continue one deterministic sample sequence (``render(s
 sequence_spp=)``), so the running mean converges to exactly the frame ``render(spp=N)`` makes;
 the mean is denoised at every doubling of the sample count from DENOISE_FIRST_SPP on.
 
-A new camera cancels the frame being traced (stale frames are cancelled, not finished). The GUI
+A new camera cancels a still pass at once, and a moving frame once it has been stale for
+STALE_MOVING_S (stale frames are cancelled, not finished; a moving frame that is almost done is
+worth showing, else a camera that changes at every GUI tick would never see a frame). The GUI
 thread only calls :meth:`LiveRenderer.update` (a lock held for a few assignments, never while
 tracing) and receives :class:`LiveFrame` objects through ``on_frame``, called on the worker
 thread, which must only hand them over (``post_to_main_thread``). Nothing here knows a GUI.
@@ -50,6 +52,9 @@ DENOISE_FIRST_SPP = 4
 #: Level-of-detail threshold while moving, pixels of the reduced frame (coarser than the still
 #: default: a moving picture hides the difference, and it is what makes low resolutions cheap).
 MOVING_LOD_PIXELS = 1.5
+#: A moving frame whose camera has been replaced is cancelled after tracing this long, seconds
+#: (twice the target frame time: an on-time frame finishes, a slow one is dropped).
+STALE_MOVING_S = 2.0 / TARGET_FPS
 #: How long :meth:`LiveRenderer.shutdown` waits for the thread by default, seconds.
 SHUTDOWN_TIMEOUT_S = 10.0
 
@@ -162,8 +167,7 @@ class LiveFrame:
 @dataclass
 class _Request:
     camera: object
-    scene: object
-    kwargs: dict
+    settings: object
     generation: int
     time: float = field(default_factory=time.monotonic)
 
@@ -175,6 +179,11 @@ class LiveRenderer:
     ----------
     on_frame : callable(LiveFrame)
         Called on the worker thread for every finished frame or accumulation pass.
+    prepare : callable(settings) -> (scene, dict)
+        Called on the worker thread with the settings of a request: the scene to trace and the
+        :func:`pointviz.render` options (``spp`` and ``denoise`` are the live view's own). It may
+        be slow the first time (tree builds); its result is reused while the settings compare
+        equal.
     on_error : callable(exception), optional
         Called on the worker thread when a frame fails (not for cancellations); the loop goes on
         with the next request.
@@ -189,9 +198,11 @@ class LiveRenderer:
     target_fps : float
     """
 
-    def __init__(self, on_frame, on_error=None, render_fn=None, threads=None, background=True,
-                 denoise=True, target_fps=TARGET_FPS):
+    def __init__(self, on_frame, prepare, on_error=None, render_fn=None, threads=None,
+                 background=True, denoise=True, target_fps=TARGET_FPS):
         self._on_frame = on_frame
+        self._prepare = prepare
+        self._prepared = None  # (settings, scene, kwargs) of the last request traced
         self._on_error = on_error or (lambda exc: None)
         self._render_fn = render_fn
         self.threads = threads
@@ -202,7 +213,6 @@ class LiveRenderer:
         self._wake = threading.Condition(self._lock)
         self._request: _Request | None = None
         self._generation = 0
-        self._cancel = threading.Event()
         self._stop = False
         self.cancelled_frames = 0
         self.moving_frames = 0
@@ -215,20 +225,18 @@ class LiveRenderer:
     def thread(self) -> threading.Thread:
         return self._thread
 
-    def update(self, camera, scene, render_kwargs) -> int:
-        """Show ``camera`` (full viewport size) of ``scene`` with these render() options.
+    def update(self, camera, settings) -> int:
+        """Show ``camera`` (full viewport size) with these settings (see ``prepare``).
 
         Returns at once. A request that differs from the current one cancels the frame being
         traced. Returns the request's generation number.
         """
         with self._lock:
             r = self._request
-            if r is not None and same_camera(r.camera, camera) and r.scene is scene \
-                    and r.kwargs == render_kwargs:
+            if r is not None and same_camera(r.camera, camera) and r.settings == settings:
                 return r.generation
             self._generation += 1
-            self._request = _Request(camera, scene, dict(render_kwargs), self._generation)
-            self._cancel.set()
+            self._request = _Request(camera, settings, self._generation)
             self._wake.notify_all()
             return self._generation
 
@@ -236,7 +244,6 @@ class LiveRenderer:
         """Cancel the frame being traced and end the thread; True once it has ended."""
         with self._lock:
             self._stop = True
-            self._cancel.set()
             self._wake.notify_all()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout)
@@ -253,12 +260,10 @@ class LiveRenderer:
             while not self._stop:
                 r = self._request
                 if r is not None and r.generation != shown:
-                    self._cancel = threading.Event()
                     return r, True
                 if r is not None and more:
                     wait_s = STILL_DELAY_S - (time.monotonic() - r.time)
                     if wait_s <= 0:
-                        self._cancel = threading.Event()
                         return r, False
                     self._wake.wait(wait_s)
                 else:
@@ -277,21 +282,16 @@ class LiveRenderer:
             if job is None:
                 return
             req, moving = job
-            cancel = self._cancel
-            kwargs = dict(req.kwargs)
-            kwargs.pop("spp", None)
-            kwargs.pop("denoise", None)
-            kwargs.setdefault("background", self.background)
-            if kwargs.get("threads") is None:
-                kwargs["threads"] = self.threads or (os.cpu_count() or 1)
+            cancel = _StaleToken(self, req.generation, STALE_MOVING_S if moving else 0.0)
             try:
+                scene, kwargs = self._scene_and_options(req.settings)
                 if moving:
-                    out = self._moving_frame(render_fn, req, kwargs, cancel)
+                    out = self._moving_frame(render_fn, req, scene, kwargs, cancel)
                     acc = None
                 else:
                     if acc is None:
                         acc = _Accumulator(req.camera)
-                    out = self._still_pass(render_fn, req, kwargs, cancel, acc)
+                    out = self._still_pass(render_fn, req, scene, kwargs, cancel, acc)
             except CancelledError:
                 self.cancelled_frames += 1
                 continue
@@ -303,23 +303,36 @@ class LiveRenderer:
             more = acc is None or acc.spp < MAX_STILL_SPP
             self._on_frame(out)
 
-    def _moving_frame(self, render_fn, req, kwargs, cancel) -> LiveFrame:
+    def _scene_and_options(self, settings):
+        p = self._prepared
+        if p is None or p[0] != settings:
+            scene, kwargs = self._prepare(settings)
+            kwargs = dict(kwargs)
+            kwargs.pop("spp", None)
+            kwargs.pop("denoise", None)
+            kwargs.setdefault("background", self.background)
+            if kwargs.get("threads") is None:
+                kwargs["threads"] = self.threads or (os.cpu_count() or 1)
+            p = self._prepared = (settings, scene, kwargs)
+        return p[1], dict(p[2])
+
+    def _moving_frame(self, render_fn, req, scene, kwargs, cancel) -> LiveFrame:
         fraction = self.controller.fraction
         camera = scaled_camera(req.camera, fraction)
         fraction = camera.width * camera.height / (req.camera.width * req.camera.height)
         kwargs["lod_pixels"] = max(float(kwargs.get("lod_pixels", 1.0)), MOVING_LOD_PIXELS)
         t0 = time.perf_counter()
-        frame = render_fn(req.scene, camera, spp=1, cancel=cancel, **kwargs)
+        frame = render_fn(scene, camera, spp=1, cancel=cancel, **kwargs)
         seconds = time.perf_counter() - t0
         self.controller.observe(fraction, seconds)
         self.moving_frames += 1
         return LiveFrame(frame.to_srgb8(), frame, camera, req.generation, True, fraction, 1,
                          False, seconds)
 
-    def _still_pass(self, render_fn, req, kwargs, cancel, acc) -> LiveFrame:
+    def _still_pass(self, render_fn, req, scene, kwargs, cancel, acc) -> LiveFrame:
         n = acc.next_pass_spp()
         t0 = time.perf_counter()
-        frame = render_fn(req.scene, req.camera, spp=n, sample_offset=acc.spp,
+        frame = render_fn(scene, req.camera, spp=n, sample_offset=acc.spp,
                           sequence_spp=MAX_STILL_SPP, cancel=cancel, **kwargs)
         seconds = time.perf_counter() - t0
         acc.add(frame, n, seconds)
@@ -336,6 +349,32 @@ class LiveRenderer:
         image = acc.denoised_image if acc.denoised_image is not None else mean.to_srgb8()
         return LiveFrame(image, mean, req.camera, req.generation, False, 1.0, acc.spp,
                          denoised or acc.denoised_image is not None, seconds)
+
+
+class _StaleToken:
+    """The cancel token of one frame (``render(cancel=)`` polls ``is_set``): set once the
+    renderer stops, or a newer request has existed for ``grace`` seconds of this frame."""
+
+    def __init__(self, renderer: LiveRenderer, generation: int, grace: float):
+        self._r = renderer
+        self._generation = generation
+        self._deadline = time.monotonic() + grace
+
+    def is_set(self) -> bool:
+        r = self._r
+        return r._stop or (r._generation != self._generation
+                           and time.monotonic() >= self._deadline)
+
+    def wait(self, timeout: float) -> bool:
+        """Block until set (or ``timeout`` seconds); returns ``is_set()``."""
+        end = time.monotonic() + timeout
+        with self._r._wake:
+            while not self.is_set():
+                left = min(end, max(self._deadline, time.monotonic() + 1e-3)) - time.monotonic()
+                if time.monotonic() >= end:
+                    break
+                self._r._wake.wait(max(left, 1e-3))
+        return self.is_set()
 
 
 class _Accumulator:
