@@ -146,7 +146,8 @@ class AutomationMixin:
                 save_frame_npz(a.frame, self.frame, self.frame_camera, a.overwrite)
             elif a.frame and self.live_frame is not None:  # live only: the live view's frame
                 save_frame_npz(a.frame, self.live_frame.frame, self.live_frame.camera,
-                               a.overwrite)
+                               a.overwrite, spp=np.int64(self.live_frame.spp),
+                               moving=np.bool_(self.live_frame.moving))
         except Exception as exc:  # noqa: BLE001 - reported, then the window closes
             a.info["error"] = f"{type(exc).__name__}: {exc}"
         if a.close:
@@ -204,8 +205,9 @@ class AutomationMixin:
 
 
 
-def save_frame_npz(path, frame, camera, overwrite=False) -> None:
-    """Frame buffers and camera JSON in one ``.npz`` (tests compare it with a direct render)."""
+def save_frame_npz(path, frame, camera, overwrite=False, **fields) -> None:
+    """Frame buffers and camera JSON in one ``.npz`` (tests compare it with a direct render);
+    ``fields`` are more arrays to store."""
     import io
 
     from ..files import atomic_write_bytes
@@ -215,7 +217,7 @@ def save_frame_npz(path, frame, camera, overwrite=False) -> None:
              if getattr(frame, k, None) is not None}
     np.savez(buf, color=frame.color, depth=frame.depth, normal=frame.normal, alpha=frame.alpha,
              camera=np.array(model.camera_json(camera)), exposure=np.float64(frame.exposure),
-             **extra)
+             **extra, **fields)
     atomic_write_bytes(path, buf.getvalue(), overwrite)
 
 

@@ -70,7 +70,6 @@ class LiveMixin:
 
     def set_live(self, on: bool) -> None:
         """Switch between the live ray-traced viewport and the splat preview."""
-        self.chk_live.checked = on
         if on == (self.live is not None):
             return
         sc = self.preview.scene
@@ -90,6 +89,7 @@ class LiveMixin:
             self.live_label.text = "live: off (splat preview)"
         self._show_splats(not on)
         self.preview.force_redraw()
+        self.chk_live.checked = on  # last: a callback it may fire finds the state already set
 
     def _background_color(self):
         from .o3d_app import PREVIEW_BACKGROUND
@@ -125,6 +125,7 @@ class LiveMixin:
         image = self.o3d.geometry.Image(np.ascontiguousarray(lf.image))
         self.preview.scene.set_background(list(self._background_color()), image)
         self.preview.force_redraw()
+        self.window.post_redraw()  # the panel's live label too
         st = self.live_stats
         st["frames_shown"] += 1
         if lf.moving:
@@ -199,7 +200,7 @@ class LiveMixin:
 
     def live_report(self) -> dict:
         """The live view's measurements (see ``pointviz view --live --report``)."""
-        out = dict(self.live_stats)
+        out = dict(self.live_stats, label=self.live_label.text, on=self.live is not None)
         s = self.live_script
         if s is None:
             return out
