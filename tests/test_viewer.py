@@ -146,6 +146,14 @@ def _python(script: str, cwd) -> subprocess.CompletedProcess:
     return out
 
 
+def _driver_result(out) -> dict:
+    """The RESULT line a driver script printed; fails with the driver's traceback if any."""
+    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
+    res = json.loads(line[len("RESULT"):])
+    assert "error" not in res, res["error"]
+    return res
+
+
 def _load_png(path) -> np.ndarray:
     from PIL import Image
 
@@ -272,9 +280,7 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
         res["worker_ended_on_close"] = v.timings.get("worker_ended_on_close")
         print("RESULT" + json.dumps(res))
         """, tmp_path)
-    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
-    res = json.loads(line[len("RESULT"):])
-    assert "error" not in res, res["error"]
+    res = _driver_result(out)
     print("viewer responsiveness:", res)
     assert res["running_during"], "the render ended before the latency was measured"
     assert res["max_latency_s"] < MAX_GUI_LATENCY_S, res
@@ -430,9 +436,7 @@ def test_live_gui_never_waits_for_the_tracer_and_close_mid_frame_ends_it(tmp_pat
         res["ended_on_close"] = v.timings.get("live_worker_ended_on_close")
         print("RESULT" + json.dumps(res))
         """, tmp_path)
-    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
-    res = json.loads(line[len("RESULT"):])
-    assert "error" not in res, res["error"]
+    res = _driver_result(out)
     assert res["lock_free"] and res["tick"] >= 1
     assert res["cancelled"] and res["ended"] and res["ended_on_close"] is True
 
