@@ -131,6 +131,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=1, help="interleaved rounds of every variant")
     ap.add_argument("--data", type=Path, default=default_data_dir())
     ap.add_argument("--out", type=Path, default=HERE / "results" / "viewer" / "viewer.json")
+    ap.add_argument("--only", action="append", metavar="TEXT",
+                    help="run only the variants whose name contains TEXT (repeatable; the "
+                         "first variant, the ratios' base, always runs)")
     args = ap.parse_args(argv)
     if not os.environ.get("DISPLAY"):
         print("bench_viewer: no X display; run it under xvfb-run -a", file=sys.stderr)
@@ -138,12 +141,14 @@ def main(argv=None) -> int:
     dragon = args.data / DRAGON_CONF
     load_cloud = DRAGON.format(path=str(dragon)) if dragon.exists() else SPHERE
     data_name = "dragon scans (dragonStandRight.conf)" if dragon.exists() else "sphere(200000)"
+    selected = [v for i, v in enumerate(VARIANTS)
+                if i == 0 or not args.only or any(t in v[0] for t in args.only)]
     samples: dict = {}
     for _ in range(args.rounds):
         for condition in ("idle", "loaded"):
             load = busy_processes(LOAD_PROCESSES) if condition == "loaded" else []
             try:
-                for name, background, threads, *extra in VARIANTS:
+                for name, background, threads, *extra in selected:
                     res = run_variant(background, threads, load_cloud, *extra)
                     samples.setdefault((condition, name), []).extend(res["latency_s"])
                     lat = np.array(res["latency_s"]) * 1e3

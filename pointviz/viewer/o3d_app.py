@@ -28,7 +28,7 @@ from . import model
 from .o3d_actions import ActionsMixin
 from .o3d_automation import Automation, AutomationMixin, grab_window, save_frame_npz
 from .o3d_live import LiveMixin
-from .worker import RenderWorker
+from .worker import RenderWorker, display_image
 
 #: Side panel width, in em (font heights).
 PANEL_WIDTH_EM = 19
@@ -542,14 +542,12 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
              "size": [result.frame.width, result.frame.height],
              "spp": self.settings.spp})
         self.progress.value = 1.0
-        img = result.frame.to_srgb8()
         if result.mesh_frame is not None:
-            gap = np.full((img.shape[0], 4, 3), 255, np.uint8)
-            img = np.concatenate([img, gap, result.mesh_frame.to_srgb8()], axis=1)
             self.render_label.text = f"points | {result.mesh_note}"
         else:
             self.render_label.text = f"done in {result.seconds:.2f} s"
-        self.result.update_image(self.o3d.geometry.Image(np.ascontiguousarray(img)))
+        img = result.image if result.image is not None else display_image(result)
+        self.result.update_image(self.o3d.geometry.Image(img))
         self._update_status()
         self.window.set_needs_layout()
         if self.automation is not None and self.automation.state == "rendering":

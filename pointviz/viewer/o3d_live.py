@@ -22,7 +22,7 @@ import numpy as np
 
 from . import model
 from .live import LiveRenderer, orbit_camera
-from .worker import RENDER_IN_BACKGROUND
+from . import worker
 
 #: Seconds the camera holds still at the end of a scripted orbit before ``still_spp`` is read
 #: (the issue's 3 s).
@@ -76,7 +76,7 @@ class LiveMixin:
         if on:
             self.live = LiveRenderer(self._post_live_frame, self._live_prepare,
                                      self._post_live_error, threads=self.settings.threads,
-                                     background=RENDER_IN_BACKGROUND)
+                                     background=worker.RENDER_IN_BACKGROUND)
             self.live_frame = None
             self.preview.enable_scene_caching(False)  # the background changes every frame
             self.live_label.text = "live: starting..."
