@@ -264,7 +264,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self._apply_lighting()
         self._apply_ground()
         self._update_point_size(force=True)
-        self._show_splats(self.live is None)
+        if self.live is not None:  # a reloaded cloud or ground stays hidden in live mode
+            self._show_splats(False)
         self.window.set_needs_layout()
 
     def _apply_lighting(self) -> None:
@@ -550,6 +551,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.result.update_image(self.o3d.geometry.Image(img))
         self._update_status()
         self.window.set_needs_layout()
+        self.window.post_redraw()
         if self.automation is not None and self.automation.state == "rendering":
             self._set_auto_state("settle")
 
