@@ -12,7 +12,7 @@ from . import _core, interrupt
 from .errors import CancelledError, InputError
 from .geometry import Geometry
 from .interrupt import stage
-from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_lod  # noqa: F401 (re-exported)
+from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_int, check_lod  # noqa: F401 (re-exported)
 
 #: Nice increment of the tracer's threads in ``render(background=True)``: a GUI thread at normal
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
@@ -118,7 +118,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            max_error: float | None = DEFAULTS.max_error, seed: int = DEFAULTS.seed,
            threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
            ground=DEFAULTS.ground, look=DEFAULTS.look, denoise=DEFAULTS.denoise,
-           background: bool = False) -> Frame:
+           background: bool = False, sample_offset: int = 0,
+           sequence_spp: int | None = None) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -161,6 +162,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
         colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
+    sample_offset, sequence_spp : int
+        Progressive rendering: trace samples ``sample_offset .. sample_offset + spp - 1`` of a
+        sequence of ``sequence_spp`` samples per pixel (default ``spp``). The mean of the frames
+        with offsets 0, spp, 2 spp, ... (same seed) is the frame rendered with all those samples
+        at once, up to float rounding.
 
     Returns
     -------
@@ -201,6 +207,9 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
     settings.footprint_offsets = lod_pixels != "auto"
     settings.seed = seed
+    settings.sample_offset = check_int(sample_offset, "sample_offset", 0, 2**31 - 1)
+    settings.sequence_spp = check_int(spp if sequence_spp is None else sequence_spp,
+                                       "sequence_spp", 1, 2**31 - 1)
     settings.threads = threads or 0
 
     is_cancelled = _cancel_check(cancel)

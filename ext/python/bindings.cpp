@@ -498,6 +498,8 @@ NB_MODULE(_core, m) {
         .def_rw("lod_pixels", &RenderSettings::lod_pixels)
         .def_rw("footprint_offsets", &RenderSettings::footprint_offsets)
         .def_rw("seed", &RenderSettings::seed)
+        .def_rw("sample_offset", &RenderSettings::sample_offset)
+        .def_rw("sequence_spp", &RenderSettings::sequence_spp)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
         .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)

@@ -29,6 +29,8 @@ DISPLAYS = ("side", "overlay")
 #: enlarged to keep the surface closed; Mesa's software rasteriser (llvmpipe) still redraws
 #: about 1.5 M lit points at interactive rates on two cores, the ray tracer always uses all.
 DEFAULT_PREVIEW_MAX_POINTS = 1_500_000
+#: Preview background (sRGB), close to the ray tracer's sky at the horizon.
+PREVIEW_BACKGROUND = (0.82, 0.86, 0.92, 1.0)
 #: Seed of the preview subset, so the same cloud always previews the same points.
 PREVIEW_SUBSET_SEED = 0
 #: Default light, degrees: azimuth around ``up`` from the scene's first horizontal axis, and
@@ -219,6 +221,8 @@ def render_scene(scene, settings: ViewerSettings):
     for i in range(len(scene.objects)):  # build the trees once, on the shared objects
         scene.surfel_scene(i)
     out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
+    if scene.lights is None and scene.look.key <= 0:  # a look without a key light ("flat")
+        return out
     angle = scene.look.key_angle_deg
     for light in scene.lights or ():
         if isinstance(light, DirectionalLight):
