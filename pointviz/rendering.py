@@ -10,7 +10,9 @@ import numpy as np
 
 from . import _core, interrupt
 from .errors import CancelledError, InputError
+from .geometry import Geometry
 from .interrupt import stage
+from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_int, check_lod  # noqa: F401 (re-exported)
 
 #: Nice increment of the tracer's threads in ``render(background=True)``: a GUI thread at normal
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
@@ -91,8 +93,7 @@ def as_scene(scene_or_cloud, **scene_kw):
 
     if isinstance(scene_or_cloud, Scene):
         return scene_or_cloud
-    if hasattr(scene_or_cloud, "points") or hasattr(scene_or_cloud, "cast_rays") or isinstance(
-            scene_or_cloud, (list, tuple)):
+    if isinstance(scene_or_cloud, (Geometry, list, tuple)) or hasattr(scene_or_cloud, "points"):
         return Scene(scene_or_cloud, **scene_kw)
     raise InputError(
         f"scene_or_cloud: expected a PointCloud, SurfelScene or Scene, got {type(scene_or_cloud).__name__}")
@@ -111,65 +112,14 @@ def camera_model(camera, origin) -> _core.CameraModel:
     return cm
 
 
-def _check_int(value, name, lo, hi):
-    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and lo <= value <= hi):
-        raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {value!r}")
-    return int(value)
-
-
-#: The automatic level of detail's default error budget: mean FLIP of the frame against full
-#: detail (benchmarks/README.md, "Issue 18": measured within it on analytic scenes and scans).
-DEFAULT_MAX_ERROR = 0.005
-
-
-def check_lod(lod_pixels=1.0, max_error=None):
-    """The level-of-detail options of :func:`render`, checked and normalised.
-
-    Returns
-    -------
-    (float or "auto", float or None)
-        ``(lod_pixels, max_error)``; for ``"auto"`` the budget defaults to DEFAULT_MAX_ERROR.
-    """
-    if isinstance(lod_pixels, str):
-        if lod_pixels != "auto":
-            raise InputError(f"lod_pixels: expected a number >= 0 or 'auto', got {lod_pixels!r}")
-        if max_error is None:
-            max_error = DEFAULT_MAX_ERROR
-        if isinstance(max_error, bool) or not isinstance(max_error, (int, float, np.number)):
-            raise InputError(f"max_error: expected a number in [0, 1], got {max_error!r}")
-        if not (np.isfinite(max_error) and 0 <= max_error <= 1):
-            raise InputError(f"max_error: expected a number in [0, 1] (mean FLIP), got {max_error!r}")
-        return "auto", float(max_error)
-    if max_error is not None:
-        raise InputError(f"max_error: only applies with lod_pixels='auto' "
-                         f"(got lod_pixels={lod_pixels!r})")
-    if isinstance(lod_pixels, bool) or not isinstance(lod_pixels, (int, float, np.number)) \
-            or not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0 or 'auto', got {lod_pixels!r}")
-    return float(lod_pixels), None
-
-
-def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
-                         threads: int | None = None, lod_pixels: float | str = 1.0,
-                         max_error: float | None = None, **_ignored):
-    """The numeric options of :func:`render`, checked (InputError naming the bad one) and
-    normalised: ``(spp, reflections, seed, threads, lod_pixels)`` (lod_pixels: a float or
-    "auto"; :func:`check_lod` gives the budget too). Callers with expensive work before the
-    render (the CLI: trees) check first."""
-    spp = _check_int(spp, "spp", 1, 4096)
-    reflections = _check_int(reflections, "reflections", 0, 16)
-    seed = _check_int(seed, "seed", 0, 2**63 - 1)
-    if threads is not None:
-        threads = _check_int(threads, "threads", 1, 1024)
-    lod_pixels, _ = check_lod(lod_pixels, max_error)
-    return spp, reflections, seed, threads, lod_pixels
-
-
-def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
-           lod_pixels: float | str = 1.0, max_error: float | None = None, seed: int = 0,
-           threads: int | None = None, progress=None, cancel=None, ground=None, look=None,
-           denoise=False,
-           background: bool = False) -> Frame:
+def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
+           reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
+           lod_pixels: float | str = DEFAULTS.lod_pixels,
+           max_error: float | None = DEFAULTS.max_error, seed: int = DEFAULTS.seed,
+           threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
+           ground=DEFAULTS.ground, look=DEFAULTS.look, denoise=DEFAULTS.denoise,
+           background: bool = False, sample_offset: int = 0,
+           sequence_spp: int | None = None) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -212,6 +162,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
+    sample_offset, sequence_spp : int
+        Progressive rendering: trace samples ``sample_offset .. sample_offset + spp - 1`` of a
+        sequence of ``sequence_spp`` samples per pixel (default ``spp``). The mean of the frames
+        with offsets 0, spp, 2 spp, ... (same seed) is the frame rendered with all those samples
+        at once, up to float rounding.
 
     Returns
     -------
@@ -223,7 +178,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         raise InputError("camera: expected a pointviz.Camera")
     from .denoise import check_available, denoise_quality
 
-    quality = denoise_quality(denoise)
+    opts = RenderSettings(shadows=shadows, reflections=reflections, spp=spp,
+                          lod_pixels=lod_pixels, max_error=max_error, seed=seed, threads=threads,
+                          ground=ground, look=look, denoise=denoise)
+    quality = denoise_quality(opts.denoise)
     if quality is not None:
         check_available()  # before the expensive part
     kw = {} if ground is None else {"ground": ground}
@@ -235,10 +193,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
             scene = scene.with_look(look)
         if ground is not None:
             scene = scene.with_ground(ground)
-    spp, reflections, seed, threads, lod_pixels = check_render_options(
-        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels,
-        max_error=max_error)
-    lod_pixels, max_error = check_lod(lod_pixels, max_error)
+    spp, reflections, seed, threads, lod_pixels = (
+        opts.spp, opts.reflections, opts.seed, opts.threads, opts.lod_pixels)
+    shadows = opts.shadows
+    lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
     rs, origin = scene.to_core(camera, lod_pixels, max_error)
     settings = _core.RenderSettings()
@@ -249,6 +207,9 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
     settings.footprint_offsets = lod_pixels != "auto"
     settings.seed = seed
+    settings.sample_offset = check_int(sample_offset, "sample_offset", 0, 2**31 - 1)
+    settings.sequence_spp = check_int(spp if sequence_spp is None else sequence_spp,
+                                       "sequence_spp", 1, 2**31 - 1)
     settings.threads = threads or 0
 
     is_cancelled = _cancel_check(cancel)

@@ -20,8 +20,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from . import extent as _extent_mod
 from .arrays import bounds
 from .errors import InputError
+from .settings import INTERPOLATIONS, check_int, check_lod
 
 #: The paper's traversal variants, as knob settings.
 VARIANTS = {
@@ -32,7 +34,6 @@ VARIANTS = {
     "full": {"lod": True, "cull": True, "box_depth": "auto"},
 }
 
-INTERPOLATIONS = ("none", "paper", "smooth")
 
 #: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
 DEFAULT_INTERPOLATION = "smooth"
@@ -276,11 +277,9 @@ class SurfelScene:
 
     def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds of the disks and the ground level along ``up`` (see
-        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
-        from .scene import cloud_extent
-
-        return self._per_up("_extents", up, lambda key: cloud_extent(
+        return self._per_up("_extents", up, lambda key: _extent_mod.cloud_extent(
             self.cloud.points, getattr(self.cloud, "radii", None), key))
 
     def shape_kind(self, up) -> str:
@@ -299,6 +298,14 @@ class SurfelScene:
             cache[key] = compute(key)
         return cache[key]
 
+    def add_to(self, render_scene, origin, material, lod_pixels: float | str,
+               max_error: float | None = None) -> None:
+        """Add this tree to a core RenderScene whose frame is centred on ``origin`` (see
+        :class:`pointviz.geometry.Geometry`)."""
+        offset = tuple(float(v) for v in (np.asarray(origin, dtype=np.float64) - self.origin))
+        render_scene.add_surfels(self._tree, self.trace_options(lod_pixels, max_error), offset,
+                                 material)
+
     def trace_options(self, lod_pixels: float | str | None = None, max_error: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold, or with the
         error budget (``lod_pixels="auto"``, ``max_error``: mean FLIP, see
@@ -308,8 +315,6 @@ class SurfelScene:
                   "lod_criterion", "lod_max_extent", "slabs", "max_error"):
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):
-            from .rendering import check_lod
-
             _, max_error = check_lod(lod_pixels, max_error)
             o.lod = o.lod and max_error > 0
             o.lod_criterion = _core.LodCriterion.budget
@@ -419,6 +424,4 @@ def _pixel_angle(pixel_angle, camera) -> float:
 def _check_threads(threads):
     if threads is None:
         return None
-    if not (isinstance(threads, (int, np.integer)) and threads >= 1):
-        raise InputError(f"threads: must be a positive integer or None, got {threads!r}")
-    return int(threads)
+    return check_int(threads, "threads", note=" or None")

@@ -444,7 +444,10 @@ NB_MODULE(_core, m) {
         .def_rw("tan_half", &CameraModel::tan_half)
         .def_rw("width", &CameraModel::width)
         .def_rw("height", &CameraModel::height)
-        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle);
+        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle)
+        .def("direction", &CameraModel::direction, "col"_a, "row"_a,
+             "Unit direction of the primary ray through continuous pixel (col, row) (the "
+             "renderer's ray model; pointviz.Camera.rays is tested against it).");
 
     nb::class_<Material>(m, "Material")
         .def(nb::init<>())
@@ -495,6 +498,8 @@ NB_MODULE(_core, m) {
         .def_rw("lod_pixels", &RenderSettings::lod_pixels)
         .def_rw("footprint_offsets", &RenderSettings::footprint_offsets)
         .def_rw("seed", &RenderSettings::seed)
+        .def_rw("sample_offset", &RenderSettings::sample_offset)
+        .def_rw("sequence_spp", &RenderSettings::sequence_spp)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
         .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)

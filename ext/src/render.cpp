@@ -119,6 +119,7 @@ public:
     void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
         const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
         const int spp = std::max(1, set_.spp);
+        const bool jitter = (set_.sequence_spp ? set_.sequence_spp : uint32_t(spp)) > 1;
         color_.assign(size_t(npix), Vec3{0, 0, 0});
         depth_sum_.assign(size_t(npix), 0.f);
         nsum_.assign(size_t(npix), Vec3{0, 0, 0});
@@ -131,9 +132,10 @@ public:
             for (int x = x0; x < x1; ++x) {
                 uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
                 float sx = rand01(set_.seed, gp, 0, 0), sy = rand01(set_.seed, gp, 0, 1);
-                for (int s = 0; s < spp; ++s) {
+                for (int i = 0; i < spp; ++i) {
+                    const uint32_t s = set_.sample_offset + uint32_t(i);
                     float u = 0.5f, v = 0.5f;
-                    if (spp > 1) {   // R2 points, shifted per pixel (Cranley–Patterson)
+                    if (jitter) {   // R2 points, shifted per pixel (Cranley–Patterson)
                         u = float(std::fmod(kR2a * s + sx, 1.0));
                         v = float(std::fmod(kR2b * s + sy, 1.0));
                     }
@@ -143,7 +145,7 @@ public:
                     pr.ray.spread = spread;
                     pr.weight = Vec3{1, 1, 1} * (1.f / float(spp));
                     pr.pixel = uint32_t((y - y0) * tw + (x - x0));
-                    pr.sample = uint32_t(s);
+                    pr.sample = s;
                     rays_.push_back(pr);
                 }
             }
