@@ -287,7 +287,10 @@ def resolve_look(look, geometry, up) -> Look:
 
         cloud = getattr(geometry, "cloud", geometry)
         pts = getattr(cloud, "points", None)
-        kind = shape_kind(pts, up) if pts is not None else "object"
+        if hasattr(geometry, "shape_kind") and hasattr(geometry, "tree"):  # a SurfelScene
+            kind = geometry.shape_kind(up)  # kept with the scene: every frame asks again
+        else:
+            kind = shape_kind(pts, up) if pts is not None else "object"
         return LOOKS["outdoor" if kind == "terrain" else "studio"]
     if look not in LOOKS:
         raise InputError(f"look: expected one of auto, {', '.join(LOOKS)}, got {look!r}")

@@ -279,10 +279,23 @@ class SurfelScene:
         """Bounds of the disks and the ground level along ``up`` (see
         :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
+        return self._per_up("_extents", up, lambda key: _extent_mod.cloud_extent(
+            self.cloud.points, getattr(self.cloud, "radii", None), key))
+
+    def shape_kind(self, up) -> str:
+        """``"terrain"`` or ``"object"`` (see :func:`pointviz.camera.shape_kind`, which picks the
+        "auto" look), decided on first use per ``up`` and reused like :meth:`extent`."""
+        from . import camera
+
+        return self._per_up("_shape_kinds", up,
+                            lambda key: camera.shape_kind(self.cloud.points, key))
+
+    def _per_up(self, name: str, up, compute):
+        """``compute(up)`` cached in the dict attribute ``name``, keyed by the ``up`` tuple."""
         key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
-        cache = self.__dict__.setdefault("_extents", {})
+        cache = self.__dict__.setdefault(name, {})
         if key not in cache:
-            cache[key] = _extent_mod.cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+            cache[key] = compute(key)
         return cache[key]
 
     def add_to(self, render_scene, origin, material, lod_pixels: float | str,
