@@ -181,9 +181,11 @@ def test_bench_core_quick(embree, tmp_path):
     import bench_core
 
     out = tmp_path / "core.json"
-    assert bench_core.main(["--quick", "--threads", "1", "--output", str(out)]) == 0
+    assert bench_core.main(["--quick", "--threads", "1", "--models", "sphere,torus,armadillo,dragon",
+                            "--output", str(out)]) == 0
     result = json.loads(out.read_text())
-    assert [m["name"] for m in result["models"]] == ["armadillo-20k", "dragon-scans-20k"]
+    assert [m["name"] for m in result["models"]] == ["sphere-20k", "torus-20k", "armadillo-20k",
+                                                     "dragon-scans-20k"]
     discs = result["models"][0]["threads"]["1"]["embree_discs"]
     assert discs["primary"]["closest_best"] > 0
     assert discs["primary"]["modes_identical"]
