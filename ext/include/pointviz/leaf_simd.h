@@ -1,23 +1,27 @@
 // pointviz — the disks of one leaf tested eight at a time (AVX2). A surfel is exactly eight
 // floats, so eight of them load as the rows of an 8x8 block whose transpose is the
-// structure-of-arrays the vector test needs. Without AVX2 the scalar loop in trace.h is used.
+// structure-of-arrays the disk kernel (disk_kernel.h) takes. Without AVX2 (the base and SSE4.2
+// kernels, dispatch.h) the same kernel runs one disk at a time (trace.h).
 #pragma once
 
 #include <cstdint>
 
+#include "pointviz/disk_kernel.h"
+#include "pointviz/isa.h"
+#include "pointviz/simd.h"
 #include "pointviz/surfel.h"
 
-#if defined(__AVX2__)
-#include <immintrin.h>
+#if defined(POINTVIZ_AVX2)
 #define POINTVIZ_LEAF_SIMD 1
 #endif
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 
 #if defined(POINTVIZ_LEAF_SIMD)
 
 /// Results of up to eight ray–disk tests: a bit per disk hit, and each lane's t, (d/r)^2 and
-/// facing. Same rejections as intersect_disk (culling, parallel rays, t-interval, radius).
+/// facing: disk_lanes (disk_kernel.h) on eight lanes.
 struct LeafHits {
     uint32_t mask;
     alignas(32) float t[8], u2[8], facing[8];
@@ -56,35 +60,17 @@ inline void intersect_leaf8(const Ray &ray, const Surfel *first, uint32_t count,
     for (uint32_t k = 0; k < 8; ++k)  // lanes past the leaf repeat its first surfel (masked)
         *rows[k] = _mm256_loadu_ps(base + 8 * (k < count ? k : 0));
     transpose8(px, py, pz, rr, nx, ny, nz, col);
-    const __m256 dx = _mm256_set1_ps(ray.d.x), dy = _mm256_set1_ps(ray.d.y),
-                 dz = _mm256_set1_ps(ray.d.z);
-    const __m256 ox = _mm256_set1_ps(ray.o.x), oy = _mm256_set1_ps(ray.o.y),
-                 oz = _mm256_set1_ps(ray.o.z);
-    __m256 facing = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(nx, dx), _mm256_mul_ps(ny, dy)),
-                                  _mm256_mul_ps(nz, dz));
-    __m256 pox = _mm256_sub_ps(px, ox), poy = _mm256_sub_ps(py, oy), poz = _mm256_sub_ps(pz, oz);
-    __m256 num = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(pox, nx), _mm256_mul_ps(poy, ny)),
-                               _mm256_mul_ps(poz, nz));
-    __m256 t = _mm256_div_ps(num, facing);
-    __m256 qx = _mm256_sub_ps(_mm256_mul_ps(dx, t), pox);
-    __m256 qy = _mm256_sub_ps(_mm256_mul_ps(dy, t), poy);
-    __m256 qz = _mm256_sub_ps(_mm256_mul_ps(dz, t), poz);
-    __m256 q2 = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(qx, qx), _mm256_mul_ps(qy, qy)),
-                              _mm256_mul_ps(qz, qz));
-    __m256 r2 = _mm256_mul_ps(rr, rr);
-    const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-    __m256 ok = _mm256_cmp_ps(_mm256_and_ps(facing, abs_mask), _mm256_set1_ps(kParallelCos), _CMP_GE_OQ);
-    if (cull) ok = _mm256_and_ps(ok, _mm256_cmp_ps(facing, _mm256_setzero_ps(), _CMP_LE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(t, _mm256_set1_ps(ray.tmin), _CMP_GE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(t, _mm256_set1_ps(tmax), _CMP_LE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(q2, r2, _CMP_LE_OQ));
-    out.mask = uint32_t(_mm256_movemask_ps(ok)) & ((1u << count) - 1u);
+    F8 t, u2, facing;
+    const F8 ok = disk_lanes<F8>(F8(px), F8(py), F8(pz), F8(rr), F8(nx), F8(ny), F8(nz), ray, tmax,
+                                 cull, t, u2, facing);
+    out.mask = movemask(ok) & ((1u << count) - 1u);
     if (out.mask == 0) return;
-    _mm256_store_ps(out.t, t);
-    _mm256_store_ps(out.u2, _mm256_div_ps(q2, r2));
-    _mm256_store_ps(out.facing, facing);
+    t.store(out.t);
+    u2.store(out.u2);
+    facing.store(out.facing);
 }
 
 #endif
 
+POINTVIZ_ISA_END
 }  // namespace pointviz
