@@ -1,7 +1,8 @@
-// pointviz — the disks of one leaf tested eight at a time (AVX2). A surfel is exactly eight
-// floats, so eight of them load as the rows of an 8x8 block whose transpose is the
-// structure-of-arrays the disk kernel (disk_kernel.h) takes. Without AVX2 (the base and SSE4.2
-// kernels, dispatch.h) the same kernel runs one disk at a time (trace.h).
+// pointviz — the disks of one leaf (up to eight) tested at once: eight lanes with AVX2, twice four
+// with SSE2 (the base and SSE4.2 kernels, dispatch.h). A surfel is exactly eight floats, so the
+// leaf loads as the rows of an 8x8 block (or two 4x4 blocks per four surfels) whose transpose is
+// the structure-of-arrays the disk kernel (disk_kernel.h) takes. Without SIMD (POINTVIZ_NO_SIMD)
+// the same kernel runs one disk at a time (trace.h).
 #pragma once
 
 #include <cstdint>
@@ -11,7 +12,7 @@
 #include "pointviz/simd.h"
 #include "pointviz/surfel.h"
 
-#if defined(POINTVIZ_AVX2)
+#if defined(POINTVIZ_AVX2) || defined(POINTVIZ_SSE2)
 #define POINTVIZ_LEAF_SIMD 1
 #endif
 
@@ -26,6 +27,8 @@ struct LeafHits {
     uint32_t mask;
     alignas(32) float t[8], u2[8], facing[8];
 };
+
+#if defined(POINTVIZ_AVX2)
 
 inline void transpose8(__m256 &r0, __m256 &r1, __m256 &r2, __m256 &r3, __m256 &r4, __m256 &r5,
                        __m256 &r6, __m256 &r7) {
@@ -69,6 +72,38 @@ inline void intersect_leaf8(const Ray &ray, const Surfel *first, uint32_t count,
     u2.store(out.u2);
     facing.store(out.facing);
 }
+
+#else  // SSE2: the leaf as two groups of four lanes
+
+/// Tests `ray` against surfels [first, first + count), count in 1..8. A surfel's two halves,
+/// (p, r) and (n, rgba), load as rows of two 4x4 blocks whose transposes are the lanes.
+inline void intersect_leaf8(const Ray &ray, const Surfel *first, uint32_t count, float tmax,
+                            bool cull, LeafHits &out) {
+    const float *base = reinterpret_cast<const float *>(first);
+    out.mask = 0;
+    for (uint32_t g = 0; g < count; g += 4) {
+        __m128 a[4], n[4];
+        for (uint32_t k = 0; k < 4; ++k) {  // lanes past the leaf repeat its first surfel (masked)
+            const float *s = base + 8 * (g + k < count ? g + k : 0);
+            a[k] = _mm_loadu_ps(s);
+            n[k] = _mm_loadu_ps(s + 4);
+        }
+        _MM_TRANSPOSE4_PS(a[0], a[1], a[2], a[3]);
+        _MM_TRANSPOSE4_PS(n[0], n[1], n[2], n[3]);
+        F4 t, u2, facing;
+        const F4 ok = disk_lanes<F4>(F4(a[0]), F4(a[1]), F4(a[2]), F4(a[3]), F4(n[0]), F4(n[1]),
+                                     F4(n[2]), ray, tmax, cull, t, u2, facing);
+        const uint32_t lanes = count - g < 4 ? count - g : 4;
+        const uint32_t m = movemask(ok) & ((1u << lanes) - 1u);
+        if (m == 0) continue;
+        out.mask |= m << g;
+        t.store(out.t + g);
+        u2.store(out.u2 + g);
+        facing.store(out.facing + g);
+    }
+}
+
+#endif  // POINTVIZ_AVX2
 
 #endif
 
