@@ -3,9 +3,20 @@
 The denoiser is guided by the frame's albedo and normal buffers, so that what the tracer
 resolved (silhouettes, albedo edges, the objects seen in mirrors) stays sharp while Monte Carlo
 noise (soft shadows, sky occlusion, glossy reflections) is removed.
+
+One :class:`Denoiser` holds an Open Image Denoise device and filter: creating them and running
+the first frame through them loads the network's weights (about 10 % of a 480x360 frame's
+denoising time, benchmarks/bench_denoise.py), so frames reuse one. ``render(denoise=True)`` uses
+:func:`shared_denoiser`, one per (quality, threads); a caller that renders many frames may pass
+its own :class:`Denoiser` instead.
 """
 
 from __future__ import annotations
+
+import math
+import threading
+import time
+import weakref
 
 import numpy as np
 
@@ -14,10 +25,20 @@ from .errors import InputError, MissingDependencyError
 #: The optional dependency and the extra that installs it.
 DENOISE_MODULE = "pyoidn"
 DENOISE_EXTRA = "denoise"
-#: Filter qualities of Open Image Denoise. "high" (the default for final frames) is its best;
-#: "fast" took about 0.6x the time on 2 CPU cores for 0.3-0.8 dB less (benchmarks/bench_denoise.py).
+#: Filter qualities of Open Image Denoise. On the CPU "balanced" runs the same network as
+#: "high"; "fast" is a smaller one.
 DENOISE_QUALITIES = ("high", "balanced", "fast")
-DENOISE_QUALITY = "high"
+#: The default, chosen on benchmarks/bench_denoise.py (480x360, 2 cores): "fast" takes about half
+#: the CPU time of "high" (0.26 s vs 0.50 s; the 4-spp frame itself 0.68 s), so a denoised 4-spp
+#: frame costs 1.33x the 4-spp frame's wall time instead of 1.84x (issue 14's budget: 1.5x), and
+#: scores 0.29 dB less (46.22 vs 46.51 dB mean over 4 seeds; 16 spp: 46.01). On the dragon's scans
+#: the two differ by 0.6/255 per pixel on average, not visibly. "high" stays one argument away.
+DENOISE_QUALITY = "fast"
+#: OIDN's "cleanAux" (the guides are noise-free) stays off, although the tracer's albedo and
+#: normals are first-hit quantities, antialiased only: with it OIDN picks networks trained on
+#: noise-free guides that cost 2.4x the CPU time at "high" and score 0.7-1 dB *lower* on the
+#: soft-shadow benchmark (4-spp antialiasing at silhouettes is not what they were trained on).
+DENOISE_CLEAN_AUX = False
 
 
 def check_available():
@@ -32,27 +53,14 @@ def check_available():
     return pyoidn
 
 
-def denoise_image(color: np.ndarray, albedo: np.ndarray | None = None,
-                  normal: np.ndarray | None = None, quality: str = DENOISE_QUALITY) -> np.ndarray:
-    """Denoise linear HDR radiance.
-
-    Parameters
-    ----------
-    color : (h, w, 3) float32
-        Linear radiance (non-negative).
-    albedo : (h, w, 3) float32, optional
-        Base colour in [0, 1], same shape.
-    normal : (h, w, 3) float32, optional
-        Unit normals (any fixed frame), zero where nothing was hit.
-    quality : {"high", "balanced", "fast"}
-
-    Returns
-    -------
-    (h, w, 3) float32
-    """
-    pyoidn = check_available()
+def _check_quality(quality) -> str:
     if quality not in DENOISE_QUALITIES:
         raise InputError(f"denoise: expected True, False or one of {DENOISE_QUALITIES}, got {quality!r}")
+    return quality
+
+
+def _check_buffers(color, albedo, normal):
+    """float32 C-contiguous (h, w, 3) buffers (copied only when they are not already)."""
     color = np.asarray(color, dtype=np.float32)
     if color.ndim != 3 or color.shape[2] != 3 or min(color.shape[:2]) == 0:
         raise InputError(f"color: expected an (h, w, 3) image, got shape {color.shape}")
@@ -70,9 +78,152 @@ def denoise_image(color: np.ndarray, albedo: np.ndarray | None = None,
         guides[name] = np.ascontiguousarray(img)
     if "normal" in guides and "albedo" not in guides:
         raise InputError("normal: Open Image Denoise needs the albedo too when given normals")
-    out = pyoidn.denoise(np.ascontiguousarray(np.maximum(color, 0.0)), guides.get("albedo"),
-                         guides.get("normal"), hdr=True, quality=quality)
-    return np.maximum(out, 0.0)
+    # HDR input must be non-negative; np.maximum writes a fresh contiguous array
+    return np.maximum(color, np.float32(0.0)), guides
+
+
+def _release(flt, device):
+    flt.release()
+    device.release()
+
+
+class Denoiser:
+    """An Open Image Denoise CPU device and ray-tracing filter, reused across frames.
+
+    Parameters
+    ----------
+    quality : {"high", "balanced", "fast"}
+    threads : int, optional
+        Worker threads of the device (default: all cores, as the renderer's).
+    clean_aux : bool
+        Tell the filter the albedo and normal guides are noise-free (see DENOISE_CLEAN_AUX).
+
+    Calls are serialised (one filter); :meth:`close` (or ``with``) frees the device early,
+    otherwise it is freed with the object.
+    """
+
+    def __init__(self, quality: str = DENOISE_QUALITY, threads: int | None = None,
+                 clean_aux: bool = DENOISE_CLEAN_AUX):
+        pyoidn = check_available()
+        from pyoidn.device import Device
+        from pyoidn.filter import Filter
+
+        self.quality = _check_quality(quality)
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 0):
+            raise InputError(f"threads: expected an int >= 0 or None, got {threads!r}")
+        self.threads = threads or None
+        self.clean_aux = bool(clean_aux)
+        self._format = pyoidn.OIDN_FORMAT_FLOAT3
+        self._lock = threading.Lock()
+        self._device = Device()
+        if self.threads:
+            self._device.set_int("numThreads", self.threads)
+        self._device.commit()
+        self._check("device creation")
+        self._filter = Filter(self._device, "RT")
+        self._check("filter creation")
+        self._filter.set_bool("hdr", True)
+        self._filter.set_bool("cleanAux", self.clean_aux)
+        self._filter.set_quality({"high": pyoidn.OIDN_QUALITY_HIGH, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
+                                  "fast": pyoidn.OIDN_QUALITY_FAST}[self.quality])
+        self._bound: tuple = ()
+        self._finalizer = weakref.finalize(self, _release, self._filter, self._device)
+
+    def _check(self, what: str) -> None:
+        err = self._device.get_error()
+        if err:
+            raise RuntimeError(f"Open Image Denoise {what} failed: {err}")
+
+    def __call__(self, color: np.ndarray, albedo: np.ndarray | None = None,
+                 normal: np.ndarray | None = None, exposure: float | None = None) -> np.ndarray:
+        """Denoise linear HDR radiance.
+
+        Parameters
+        ----------
+        color : (h, w, 3) float32
+            Linear radiance (negative values are clamped to 0).
+        albedo : (h, w, 3) float32, optional
+            Base colour in [0, 1], same shape.
+        normal : (h, w, 3) float32, optional
+            Unit normals (any fixed frame), zero where nothing was hit; needs ``albedo``.
+        exposure : float, optional
+            The scale the frame is displayed at (``tonemap(color * exposure)``): the filter's
+            input scale, so that its perceptual weighting matches the picture the user sees.
+            None: Open Image Denoise's own estimate from the image.
+
+        Returns
+        -------
+        (h, w, 3) float32
+        """
+        if not self._finalizer.alive:
+            raise InputError("denoiser: used after close()")
+        if exposure is not None and not (math.isfinite(exposure) and exposure > 0):
+            raise InputError(f"exposure: expected a finite number > 0, got {exposure!r}")
+        color, guides = _check_buffers(color, albedo, normal)
+        out = np.empty_like(color)
+        images = {"color": color, **guides, "output": out}
+        with self._lock:
+            flt = self._filter
+            for name in set(self._bound) - set(images):
+                flt.unset_image(name)
+            for name, img in images.items():
+                flt.set_image(name, img, self._format)
+            self._bound = tuple(images)
+            flt.set_float("inputScale", float(exposure) if exposure is not None else math.nan)
+            flt.commit()
+            self._check("filter setup")
+            flt.execute()
+            self._check("filtering")
+        return np.maximum(out, np.float32(0.0), out=out)
+
+    def close(self) -> None:
+        """Free the device and filter now (later calls raise InputError)."""
+        with self._lock:
+            self._finalizer()
+
+    def __enter__(self) -> "Denoiser":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+_SHARED: dict = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_denoiser(quality: str = DENOISE_QUALITY, threads: int | None = None) -> Denoiser:
+    """The process's denoiser for (quality, threads), created on first use.
+
+    The one piece of process state of this module: what it caches is the network's weights
+    loaded into a device, which every frame of a run would otherwise load again.
+    """
+    key = (_check_quality(quality), threads or None)
+    with _SHARED_LOCK:
+        den = _SHARED.get(key)
+        if den is None:
+            den = _SHARED[key] = Denoiser(*key)
+        return den
+
+
+def denoise_image(color: np.ndarray, albedo: np.ndarray | None = None,
+                  normal: np.ndarray | None = None, quality: str = DENOISE_QUALITY,
+                  exposure: float | None = None, threads: int | None = None) -> np.ndarray:
+    """Denoise linear HDR radiance with the shared denoiser (see :meth:`Denoiser.__call__`).
+
+    Parameters
+    ----------
+    color, albedo, normal : (h, w, 3) float32
+    quality : {"high", "balanced", "fast"}
+    exposure : float, optional
+    threads : int, optional
+
+    Returns
+    -------
+    (h, w, 3) float32
+    """
+    check_available()
+    return shared_denoiser(quality, threads)(color, albedo, normal, exposure)
 
 
 def denoise_quality(denoise) -> str | None:
@@ -81,18 +232,24 @@ def denoise_quality(denoise) -> str | None:
         return None
     if denoise is True:
         return DENOISE_QUALITY
-    if denoise in DENOISE_QUALITIES:
+    if isinstance(denoise, Denoiser):
+        return denoise.quality
+    if isinstance(denoise, str) and denoise in DENOISE_QUALITIES:
         return denoise
-    raise InputError(f"denoise: expected True, False or one of {DENOISE_QUALITIES}, got {denoise!r}")
+    raise InputError(f"denoise: expected True, False, a Denoiser or one of {DENOISE_QUALITIES}, "
+                     f"got {denoise!r}")
 
 
-def denoise_frame(frame, quality: str = DENOISE_QUALITY) -> None:
-    """Denoise ``frame.color`` in place (guided by its albedo and normals); the tracer's
-    colour moves to ``frame.noisy_color`` and the time to ``frame.stats["denoise_seconds"]``."""
-    import time
+def denoise_frame(frame, denoise=True, threads: int | None = None) -> None:
+    """Denoise ``frame.color`` in place, guided by its albedo and normals and displayed at
+    ``frame.exposure``; the tracer's colour moves to ``frame.noisy_color`` and the time to
+    ``frame.stats["denoise_seconds"]``.
 
+    ``denoise`` is True, a quality name or a :class:`Denoiser`.
+    """
     t0 = time.perf_counter()
+    den = denoise if isinstance(denoise, Denoiser) else shared_denoiser(denoise_quality(denoise), threads)
     noisy = frame.color
-    frame.color = denoise_image(noisy, frame.albedo, frame.normal, quality)
+    frame.color = den(noisy, frame.albedo, frame.normal, exposure=frame.exposure)
     frame.noisy_color = noisy
     frame.stats["denoise_seconds"] = time.perf_counter() - t0

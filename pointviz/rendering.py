@@ -134,7 +134,7 @@ def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
 
 def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
            lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise: bool | str = False,
+           cancel=None, ground=None, look=None, denoise=False,
            background: bool = False) -> Frame:
     """Ray trace a frame.
 
@@ -166,10 +166,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     look : {"auto", "studio", "outdoor", "flat"} or Look, optional
         Lights, sky occlusion, backdrop and exposure (see :class:`pointviz.scene.Scene`);
         default: the scene's, "auto" for a PointCloud.
-    denoise : bool or {"high", "balanced", "fast"}
+    denoise : bool, {"high", "balanced", "fast"} or pointviz.denoise.Denoiser
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
-        "high" quality. The tracer's colour stays in ``frame.noisy_color``.
+        ``pointviz.denoise.DENOISE_QUALITY`` ("fast": the benchmark's choice). The tracer's
+        colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
 
@@ -235,14 +236,14 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
                          "look": scene.look.name, "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])
-    if quality is not None:
-        from .denoise import denoise_frame
-
-        denoise_frame(frame, quality)
-    if scene.look.auto_exposure:
+    if scene.look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
         from .images import auto_exposure
 
         frame.exposure = auto_exposure(frame.color, frame.object_alpha)
+    if quality is not None:
+        from .denoise import denoise_frame
+
+        denoise_frame(frame, denoise, threads)
     if progress is not None:
         progress(stats["tiles_total"], stats["tiles_total"])
     return frame
