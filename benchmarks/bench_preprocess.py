@@ -13,7 +13,11 @@ would compare with, measured in the same run.
    silhouette), depth error / diagonal. Targets: normal error <= Poisson's,
    holes <= Poisson's, depth error <= 1.5x, points-to-hits >= 10x faster.
 3. **The dragon's raw scans** (``dragonStandRight.conf``, 469k points): seconds of normals,
-   surface fit and radii, the points the fit kept and its mean shift.
+   surface fit and radii, the points the fit kept and its mean shift; and how many normals are
+   misoriented (the dark flecks of its renders), against the dragon's reconstruction
+   (``recon_derived``): the share of points (within MESH_NEAR_MM of the mesh) whose normal
+   points away from the nearest mesh face's, raw normals and kept surfels, and the share of
+   first hits of the default camera whose surfel faces away from the camera.
 
 Runs are interleaved (``--repeat``, median), wall time on ``--threads`` (default 2) threads.
 
@@ -40,6 +44,12 @@ import paper_figures as pf
 SIZE = 1_000_000
 DRAGON = Path("stanford_dragon/dragon_stand/dragonStandRight.conf")
 ARMADILLO = Path("stanford_armadillo/Armadillo.ply")
+DRAGON_MESH = Path("stanford_dragon/recon_derived/dragon_vrip_res3_meshlab.ply")
+#: Points farther than this from the reconstruction are strays (or parts it smoothed away): their
+#: nearest face says nothing about their orientation.
+MESH_NEAR_MM = 1.0
+#: Samples on the reconstruction for the nearest-face lookup (~17 per face).
+MESH_SAMPLES = 400_000
 #: Issue 15's targets.
 TARGET_SCENE_VS_EMBREE = 3.0
 TARGET_SPEEDUP_VS_POISSON = 10.0
@@ -250,8 +260,9 @@ def dragon_section(args, log) -> dict | None:
     out = {"points": len(raw)}
     steps = {"normals": [], "fit": [], "radii": []}
     for _ in range(args.repeat):
-        _, t = timed(lambda: estimation.estimate_normals(raw.points, viewpoints=raw.viewpoints,
-                                                         threads=args.threads))
+        _, t = timed(lambda: estimation.estimate_normals(
+            raw.points, viewpoints=raw.viewpoints, scan_index=raw.scan_index,
+            threads=args.threads))
         steps["normals"].append(t)
         cloud = pointviz.PointCloud(raw.points, viewpoints=raw.viewpoints,
                                     scan_index=raw.scan_index)
@@ -261,9 +272,47 @@ def dragon_section(args, log) -> dict | None:
         steps["radii"].append(t)
     out.update({k: statistics.median(v) for k, v in steps.items()})
     out["fit_report"] = fitted.fit_report
+    out["misoriented"] = _dragon_misoriented(args, raw, fitted, log)
     log(f"[3] dragon raw scans ({len(raw):,} points): normals alone {out['normals']:.2f} s; "
         f"normals + surface fit {out['fit']:.2f} s, radii of the kept points {out['radii']:.2f} s;"
         f" {fitted.fit_report['summary']}")
+    return out
+
+
+def _dragon_misoriented(args, raw, fitted, log) -> dict | None:
+    """Shares of misoriented normals on the dragon (see section 3 of the module docstring)."""
+    import pointviz
+
+    mesh_path = args.data / DRAGON_MESH
+    if not mesh_path.is_file():
+        log(f"[3] misoriented normals skipped: {mesh_path} not found")
+        return None
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    mesh = trimesh.load(mesh_path, process=False)
+    samples, face = trimesh.sample.sample_surface_even(mesh, MESH_SAMPLES, seed=0)
+    tree = cKDTree(samples)
+    face_n = np.asarray(mesh.face_normals)
+
+    def away(points, normals):
+        d, i = tree.query(points, workers=-1)
+        near = d < MESH_NEAR_MM * 1e-3
+        return float((np.einsum("ij,ij->i", normals, face_n[face[i]])[near] < 0).mean())
+
+    out = {"raw_points": away(raw.points, raw.normals), "kept_surfels": away(fitted.points,
+                                                                             fitted.normals)}
+    cam = pointviz.Camera.fit(fitted, width=320, height=240)
+    rays = cam.rays()
+    hits = pointviz.SurfelScene(fitted, interpolation="none", cull=False).cast_rays(
+        rays, camera=cam, stats=False)
+    idx = hits["index"]
+    hit = idx >= 0
+    facing = np.einsum("ij,ij->i", fitted.normals[idx[hit]], rays[hit, 3:6])
+    out["first_hits_facing_away"] = float((facing > 0).mean())
+    log(f"[3] misoriented normals (against the reconstruction's): raw points "
+        f"{100 * out['raw_points']:.2f} %, kept surfels {100 * out['kept_surfels']:.2f} %; first "
+        f"hits facing away from the camera {100 * out['first_hits_facing_away']:.2f} %")
     return out
 
 

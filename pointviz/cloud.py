@@ -201,7 +201,8 @@ class PointCloud:
     def normals(self) -> np.ndarray:
         """(n, 3) float32 unit normals; estimated (and cached) on first access if not given."""
         if self._normals is None:
-            est = estimate_normals(self._points, viewpoints=self.viewpoints, up=self.up)
+            est = estimate_normals(self._points, viewpoints=self.viewpoints,
+                                   scan_index=self.scan_index, up=self.up)
             est.setflags(write=False)
             self._normals = est
         return self._normals

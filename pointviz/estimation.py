@@ -118,6 +118,16 @@ def _viewpoints(value, n: int):
     return array_checks.viewpoints(value, n)
 
 
+def _groups(scan_index, viewpoints, n: int):
+    """(n,) int32 scan of each point: ``scan_index``, else one scan per distinct viewpoint row
+    (None without either, or with a single viewpoint for all points)."""
+    if scan_index is not None:
+        return array_checks.per_point("scan_index", scan_index, n, np.int32)
+    if viewpoints is not None and viewpoints.ndim == 2 and len(viewpoints) == n:
+        return np.unique(viewpoints, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+    return None
+
+
 def _up(value):
     if value is None:
         return None
@@ -178,6 +188,7 @@ def estimate_normals(
     *,
     k: int | None = None,
     viewpoints=None,
+    scan_index=None,
     up=None,
     threads: int = 0,
     details: bool = False,
@@ -194,6 +205,11 @@ def estimate_normals(
     viewpoints : (3,) or (n, 3) array_like, optional
         Scanner position(s): each normal is flipped to face its viewpoint. Otherwise normals are
         oriented along a minimum spanning tree (see :func:`orient_normals`).
+    scan_index : (n,) array_like of int, optional
+        Which scan each point came from. Each normal is then estimated from neighbours in its
+        own scan only: a range scan sees one side of a thin part, while the registered scans
+        together put both sides of a claw or spike into one neighbourhood and tilt its plane
+        across the part. Without it, points with the same viewpoint form one scan.
     up : (3,) array_like, optional
         Tie-break for open, flat parts without viewpoints.
     threads : int
@@ -221,8 +237,9 @@ def estimate_normals(
         k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
     else:
         k_min = k_max = max(3, _count("k", k, 3))
+    vp = _viewpoints(viewpoints, n)
     out = _core().estimate_normals(
-        pts, _viewpoints(viewpoints, n), _up(up), min(k_min, n), min(k_max, n),
+        pts, vp, _groups(scan_index, vp, n), _up(up), min(k_min, n), min(k_max, n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads),
     )
     normals = out.pop("normals")
@@ -428,11 +445,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     _distinct(pts, "surface fit")
     nrm = None if normals is None else _normals(normals, n)
     vp = _viewpoints(viewpoints, n)
-    group = None
-    if scan_index is not None:
-        group = array_checks.per_point("scan_index", scan_index, n, np.int32)
-    elif vp is not None and vp.ndim == 2:
-        group = np.unique(vp, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+    group = _groups(scan_index, vp, n)
     if not (np.isfinite(thin) and 0.0 <= thin <= 2.0):
         raise InputError(f"thin: expected a number in [0, 2], got {thin!r}")
     out = _core().fit_surface(

@@ -239,6 +239,72 @@ def test_fit_keeps_a_plane_flat_and_does_not_move_clean_points(rng):
 
 
 # ------------------------------------------------------------------------------------------
+# thin parts scanned from several sides
+
+
+def cylinder_scans(rng, radius=0.3, length=20.0, step=0.1, noise=0.003):
+    """Four orthographic range scans (from +x, -x, +y, -y) of a thin cylinder along z, each a
+    grid of step/2 across and step along the axis with depth noise: points, per-point
+    viewpoints, scan index and the exact outward normals. The cylinder is thinner than a
+    32-point neighbourhood of all scans together is wide."""
+    pts, vps, scan, nrm = [], [], [], []
+    for s, d in enumerate(np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]])):
+        side = np.cross([0.0, 0, 1], d)
+        u, z = (a.ravel() for a in np.meshgrid(np.arange(-radius, radius, step / 2),
+                                               np.arange(0, length, step)))
+        radial = u[:, None] * side + np.sqrt(radius**2 - u**2)[:, None] * d
+        p = radial + z[:, None] * [0, 0, 1.0] + noise * rng.standard_normal((len(u), 1)) * d
+        pts.append(p)
+        nrm.append(radial / radius)
+        vps.append(np.tile(100 * d + [0, 0, length / 2], (len(u), 1)))
+        scan.append(np.full(len(u), s))
+    return tuple(np.concatenate(a) for a in (pts, vps, scan, nrm))
+
+
+def test_thin_parts_scanned_from_all_sides_keep_their_orientation(rng):
+    """Each scan's normals come from its own neighbours: a range scan sees one side of a thin
+    part, while all scans together put both sides into one neighbourhood and tilt its plane
+    across the part, so that facing the scanner picks the wrong sign (the dragon's dark flecks
+    at claws and spikes).
+
+    Measured: flipped 0 % (own scan) vs 4.6 % (all scans as one); after the fit 0 % vs 4.7 %,
+    normal error 1.1 degrees."""
+    pts, vps, scan, exact = cylinder_scans(rng)
+    own = est.estimate_normals(pts, viewpoints=vps, scan_index=scan)
+    assert (np.einsum("ij,ij->i", own, exact) > 0).all()
+    # the groups default to one per viewpoint
+    np.testing.assert_array_equal(est.estimate_normals(pts, viewpoints=vps), own)
+    # the control: one neighbourhood over all scans does flip some (what the test guards)
+    mixed = est.estimate_normals(pts, viewpoints=vps, scan_index=np.zeros(len(pts), int))
+    assert (np.einsum("ij,ij->i", mixed, exact) < 0).mean() > 0.01
+    fit = est.fit_surface(pts, viewpoints=vps, scan_index=scan, thin=0)
+    cos = np.einsum("ij,ij->i", fit.normals, exact)
+    assert (cos > 0).all()
+    assert angles_deg(fit.normals, exact).mean() < 3.0
+
+
+def test_fit_keeps_each_side_of_a_thin_plate_on_its_side(rng):
+    """A plate thinner than the fit's neighbourhood, scanned from above and below: a point's fit
+    leaves out the neighbours that face the other way, so each side moves closer to its own
+    exact plane (a fit across both would pull both onto the mid-plane, thickness / 2 away).
+
+    Measured: mean distance to the own side 4.0e-3 raw, 1.1e-3 fitted (thickness 0.05)."""
+    thick, step, noise = 0.05, 0.1, 0.005
+    g = np.arange(0, 5, step)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    top = np.c_[x, y, thick + noise * rng.standard_normal(len(x))]
+    bottom = np.c_[x + step / 2, y + step / 3, noise * rng.standard_normal(len(x))]
+    pts = np.r_[top, bottom]
+    scan = np.repeat([0, 1], len(x))
+    vps = np.where(scan[:, None] == 0, [2.5, 2.5, 100.0], [2.5, 2.5, -100.0])
+    fit = est.fit_surface(pts, viewpoints=vps, scan_index=scan, thin=0)
+    exact_z = np.where(scan == 0, thick, 0.0)
+    raw = np.abs(pts[:, 2] - exact_z).mean()
+    assert np.abs(fit.points[:, 2] - exact_z).mean() < 0.5 * raw
+    assert (np.sign(fit.normals[:, 2]) == np.where(scan == 0, 1, -1)).all()
+
+
+# ------------------------------------------------------------------------------------------
 # determinism
 
 
@@ -248,9 +314,11 @@ def test_results_identical_for_any_thread_count(torus_scans):
     runs = []
     for threads in (1, 2, 3):
         n = est.estimate_normals(p, threads=threads)
+        n_scans = est.estimate_normals(p, viewpoints=vp, scan_index=si, threads=threads)
         r = est.coverage_radii(p, n, threads=threads)
         f = est.fit_surface(p, viewpoints=vp, scan_index=si, threads=threads)
-        runs.append((est.knn(p, 12, threads=threads)[1], n, r, f.points, f.normals, f.keep))
+        runs.append((est.knn(p, 12, threads=threads)[1], n, n_scans, r, f.points, f.normals,
+                     f.keep))
     for other in runs[1:]:
         for a, b in zip(runs[0], other):
             np.testing.assert_array_equal(a, b)

@@ -655,15 +655,16 @@ NB_MODULE(_core, m) {
        "(dist (n, k) float64, index (n, k) uint32): k nearest neighbours, the point excluded");
 
     m.def("estimate_normals", [](CArray<double> points, std::optional<CArray<double>> viewpoints,
+                                 std::optional<CArray<int32_t>> scan_index,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,
                                  uint32_t k_max, double confidence, OrientArgs orient, int threads) {
-        PointsView v = points_view(points, viewpoints, std::nullopt);
+        PointsView v = points_view(points, viewpoints, scan_index);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
         OrientOptions oo = orient_options(orient, up);
         NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
         return normals_dict(o, v.n);
-    }, "points"_a, "viewpoints"_a.none(), "up"_a.none(), "k_min"_a, "k_max"_a, "confidence"_a,
-       "orient"_a, "threads"_a = 0);
+    }, "points"_a, "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(), "k_min"_a,
+       "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0);
 
     m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
                                std::optional<CArray<double>> viewpoints,

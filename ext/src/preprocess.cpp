@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "pointviz/scan_neighbours.h"
+
 namespace pointviz {
 
 KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &progress) {
@@ -79,16 +81,30 @@ void normals_to_input(const Spatial &sp, NormalsOutput &o) {
     o.est.spread = sp.to_input(o.est.spread);
 }
 
-NormalsOutput normals_from_table(const PointsView &in, const NeighbourTable &t,
-                                 const NormalOptions &nopt, const OrientOptions &oopt,
-                                 Progress &progress) {
+/// Normals from the neighbour table `t` of all points (null: only needed when in.group is null
+/// or there are no viewpoints; then it is computed on `tree` here). With scans (in.group), each
+/// normal comes from its own scan's neighbours (see scan_neighbours.h).
+NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
+                                 const NeighbourTable *t, const NormalOptions &nopt,
+                                 const OrientOptions &oopt, Progress &progress) {
     NormalsOutput out;
-    out.est = estimate_normals(in.points, t, nopt, &progress);
+    NeighbourTable own;
+    uint32_t k = std::min<uint64_t>(std::max(nopt.k_max - 1, oopt.k), in.n - 1);
+    bool need_all = !in.group || !in.viewpoints;
+    if (need_all && !t) t = &(own = knn_all(tree, in.points, k, nopt.threads, &progress));
+    if (in.group && in.n > 1) {
+        NeighbourTable scan = knn_within_groups(in.points, in.n, in.group,
+                                                std::min<uint64_t>(nopt.k_max - 1, in.n - 1),
+                                                tree, nopt.threads, &progress);
+        out.est = estimate_normals(in.points, scan, nopt, &progress);
+    } else {
+        out.est = estimate_normals(in.points, *t, nopt, &progress);
+    }
     if (in.viewpoints)
         out.toward_viewpoint_flips = orient_toward(in.points, out.est.normals.data(), in.n,
                                                    in.viewpoints, in.n_viewpoints);
     else
-        out.orient = orient_mst(in.points, out.est.normals.data(), t, oopt, &progress);
+        out.orient = orient_mst(in.points, out.est.normals.data(), *t, oopt, &progress);
     return out;
 }
 
@@ -97,9 +113,7 @@ NormalsOutput normals_from_table(const PointsView &in, const NeighbourTable &t,
 NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
                              const OrientOptions &oopt, Progress &progress) {
     Spatial sp(in, nopt.threads, progress);
-    uint32_t k = std::max(nopt.k_max - 1, oopt.k);
-    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, nopt.threads, &progress);
-    NormalsOutput out = normals_from_table(sp.view, t, nopt, oopt, progress);
+    NormalsOutput out = normals_from_table(sp.view, sp.tree, nullptr, nopt, oopt, progress);
     normals_to_input(sp, out);
     return out;
 }
@@ -135,7 +149,7 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
     if (normals) {
         nrm = sp.to_tree(normals, 3);
     } else {
-        out.normals = normals_from_table(sp.view, t, nopt, oopt, progress);
+        out.normals = normals_from_table(sp.view, sp.tree, &t, nopt, oopt, progress);
         nrm = out.normals.est.normals;
         support = out.normals.est.support.data();
     }

@@ -15,6 +15,10 @@ namespace {
 /// Spatial weight (1 - d^2 / h^2)^2 with h = kFitReach x the farthest fitted neighbour's
 /// distance (as for the normals: the farthest keeps 31% weight).
 constexpr double kFitReach = 1.5;
+/// Neighbours whose normal makes more than acos(kSameSideCos) = 90 degrees with the point's
+/// take no part in its fit: the two sides of a claw 1 mm thick are within one neighbourhood of
+/// the dragon's scans, and their normals point apart.
+constexpr double kSameSideCos = 0.0;
 /// Largest number of unknowns of a fit.
 constexpr int kMaxTerms = 6;
 /// A Cholesky pivot below this fraction of the matrix's largest diagonal entry means the
@@ -110,7 +114,11 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
         v[m + 1] = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
         z[m + 1] = (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h;
         double t = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
-        ws[m + 1] = t * t;
+        // a neighbour facing the other way lies on the far side of a thin part (or is
+        // misoriented): fitting it would pull the point into the part
+        const float *qn = normals + 3 * size_t(row[m]);
+        bool same_side = qn[0] * nn[0] + qn[1] * nn[1] + qn[2] * nn[2] > kSameSideCos;
+        ws[m + 1] = same_side ? t * t : 0.0;
     }
     w = ws;
     int terms = quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;

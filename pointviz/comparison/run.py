@@ -168,14 +168,22 @@ def run_methods(cloud, camera, settings: Settings, methods, reference_frame, dia
             f"normal {m['normal_error_deg']:5.1f} deg  holes {m['holes']:.3f}")
         entries.append(e)
 
+    surfels, surfel_steps = cloud, {"radii": t_radii}
     for method in methods:
         if method in _INTERP:
-            ss, t_build = _timed(lambda: SurfelScene(cloud, interpolation=_INTERP[method]))
+            if surfels is cloud and cloud.is_raw_scan:
+                # registered raw scans: the surfels a user gets (`pointviz render`'s default)
+                # are fitted across the scan layers; the fit and the fitted radii are theirs
+                surfels, t_fit = _timed(cloud.fitted)
+                _, t_fit_radii = _timed(lambda: surfels.radii)
+                surfel_steps = {"fit": t_fit, "radii": t_fit_radii}
+                log(f"  surfels: {surfels.fit_report['summary']}")
+            ss, t_build = _timed(lambda: SurfelScene(surfels, interpolation=_INTERP[method]))
             for lod in settings.lods:
-                steps = dict(steps0, radii=t_radii, tree=t_build)
+                steps = dict(steps0, **surfel_steps, tree=t_build)
                 frame, wall = _timed(lambda: render_geometry(ss, camera, settings, lod=lod))
                 score(method, f"{method} lod {lod:g} px", {"interpolation": _INTERP[method],
-                      "lod_pixels": float(lod)}, steps, frame, wall, {"surfels": len(cloud)})
+                      "lod_pixels": float(lod)}, steps, frame, wall, {"surfels": len(surfels)})
             continue
         if method == "poisson":
             from .reconstruct import poisson

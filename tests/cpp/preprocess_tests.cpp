@@ -1,5 +1,5 @@
-// pointviz — tests of the preprocessing core (knn.h, normals.h, orient.h, radii.h,
-// surface_fit.h) on their own, run under ASan + UBSan by `make sanitize`. Neighbours are checked against brute force over all points; every
+// pointviz — tests of the preprocessing core (knn.h, scan_neighbours.h, normals.h, orient.h,
+// radii.h, surface_fit.h) on their own, run under ASan + UBSan by `make sanitize`. Neighbours are checked against brute force over all points; every
 // step must give the same result on any thread count, stop with Cancelled once cancelled, and
 // give finite output on degenerate input (duplicates, a line, fewer points than neighbours).
 #include <algorithm>
@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "pointviz/preprocess.h"
+#include "pointviz/scan_neighbours.h"
 #include "check.h"
 
 using namespace pointviz;
@@ -68,6 +69,45 @@ void test_knn_matches_brute_force() {
     }
 }
 
+void test_knn_within_groups_matches_brute_force() {
+    // three interleaved "scans" of one sphere and a scan of 5 points (fewer than k + 1: its
+    // points take their neighbours among all points)
+    std::vector<double> p = sphere_points(1500, 11, 0.02);
+    size_t n = p.size() / 3;
+    std::vector<int32_t> group(n);
+    for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? 7 : int32_t(i % 3);
+    const uint32_t k = 12;
+    KnnTree all(p.data(), n, 2);
+    std::vector<uint32_t> ref;
+    for (int threads : {1, 3}) {
+        NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
+        CHECK(t.n == n && t.k == k, "table shape");
+        if (threads == 1) {
+            ref = t.index;
+        } else {
+            CHECK(t.index == ref, "within-group neighbours differ at %d threads", threads);
+        }
+    }
+    size_t bad = 0;
+    for (size_t i = 0; i < n; ++i) {
+        std::vector<uint32_t> want;
+        if (group[i] == 7) {
+            want = brute_row(p, i, k);
+        } else {  // brute force over the same group only, by (distance, index)
+            std::vector<uint32_t> idx;
+            for (size_t j = 0; j < n; ++j)
+                if (j != i && group[j] == group[i]) idx.push_back(uint32_t(j));
+            std::sort(idx.begin(), idx.end(), [&](uint32_t a, uint32_t b) {
+                double da = d2(&p[3 * i], &p[3 * size_t(a)]), db = d2(&p[3 * i], &p[3 * size_t(b)]);
+                return da < db || (da == db && a < b);
+            });
+            want.assign(idx.begin(), idx.begin() + k);
+        }
+        bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
+    }
+    CHECK(bad == 0, "within-group neighbours: %zu of %zu rows differ from brute force", bad, n);
+}
+
 void test_tiny_clouds() {
     double one[3] = {1, 2, 3};
     KnnTree t1(one, 1);
@@ -87,7 +127,9 @@ void test_identical_for_any_thread_count() {
     v.points = p.data();
     v.n = p.size() / 3;
     double centre[3] = {0, 0, 0};
-    std::vector<float> ref_n, ref_r;
+    std::vector<int32_t> group(v.n);
+    for (size_t i = 0; i < v.n; ++i) group[i] = int32_t(i % 4);
+    std::vector<float> ref_n, ref_r, ref_gn;
     std::vector<double> ref_p;
     for (int threads : {1, 2, 4}) {
         Progress pr;
@@ -104,8 +146,10 @@ void test_identical_for_any_thread_count() {
         FitOptions fo;
         fo.threads = threads;
         FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr);
+        vv.group = group.data();  // normals from each scan's own neighbours
+        NormalsOutput gn = normals_points(vv, no, oo, pr);
         if (threads == 1) {
-            ref_n = nr.est.normals, ref_r = r, ref_p = f.fit.points;
+            ref_n = nr.est.normals, ref_r = r, ref_p = f.fit.points, ref_gn = gn.est.normals;
             size_t outward = 0;
             for (size_t i = 0; i < v.n; ++i)
                 outward += ref_n[3 * i] * p[3 * i] + ref_n[3 * i + 1] * p[3 * i + 1] +
@@ -117,6 +161,7 @@ void test_identical_for_any_thread_count() {
             CHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
             CHECK(r == ref_r, "radii differ at %d threads", threads);
             CHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
+            CHECK(gn.est.normals == ref_gn, "per-scan normals differ at %d threads", threads);
         }
     }
 }
@@ -195,6 +240,7 @@ void test_degenerate_neighbourhoods_give_finite_output() {
 
 int main() {
     test_knn_matches_brute_force();
+    test_knn_within_groups_matches_brute_force();
     test_tiny_clouds();
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();
