@@ -20,8 +20,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from . import extent as _extent_mod
 from .arrays import bounds
 from .errors import InputError
+from .settings import INTERPOLATIONS, check_int, check_lod
 
 #: The paper's traversal variants, as knob settings.
 VARIANTS = {
@@ -32,7 +34,6 @@ VARIANTS = {
     "full": {"lod": True, "cull": True, "box_depth": "auto"},
 }
 
-INTERPOLATIONS = ("none", "paper", "smooth")
 
 #: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
 DEFAULT_INTERPOLATION = "smooth"
@@ -40,6 +41,10 @@ DEFAULT_INTERPOLATION = "smooth"
 #: Most surfels per leaf: 8 surfels (256 bytes, four cache lines) per leaf keeps the tree at about
 #: a third of a node per surfel (about 11 bytes per surfel) while a leaf is still cheap to test.
 DEFAULT_LEAF_SIZE = 8
+#: Mean FLIP the paper's size rule at 1 px costs at most in the measured frames (0.0026: an
+#: 8M-surfel analytic scene at the framing distance; under 0.0012 on the 1M calibration
+#: frames). The automatic level of detail adds the size rule at min(1, max_error / this) px.
+SIZE_RULE_ERROR = 0.003
 
 #: With box_depth="auto", boxes are kept for the top levels while their total stays within this
 #: many bytes per surfel: boxes are tighter than spheres but cost 24 bytes per node, and the top
@@ -316,28 +321,46 @@ class SurfelScene:
 
     def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds of the disks and the ground level along ``up`` (see
-        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
-        from .scene import cloud_extent
-
         key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
         cache = self.__dict__.setdefault("_extents", {})
         if key not in cache:
             if self.cloud is not None:
-                cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+                cache[key] = _extent_mod.cloud_extent(self.cloud.points,
+                                                      getattr(self.cloud, "radii", None), key)
             else:  # keep_cloud=False: the tree's own surfels, in its local frame
                 view = self._tree.surfel_view()
-                lo, hi, level = cloud_extent(view[:, :3], view[:, 3], key)
+                lo, hi, level = _extent_mod.cloud_extent(view[:, :3], view[:, 3], key)
                 o = self.origin
                 cache[key] = (lo + o, hi + o, level + float(np.dot(o, key)))
         return cache[key]
 
-    def trace_options(self, lod_pixels: float | None = None):
-        """A copy of the traversal options, optionally with another LoD threshold."""
+    def add_to(self, render_scene, origin, material, lod_pixels: float | str,
+               max_error: float | None = None) -> None:
+        """Add this tree to a core RenderScene whose frame is centred on ``origin`` (see
+        :class:`pointviz.geometry.Geometry`)."""
+        offset = tuple(float(v) for v in (np.asarray(origin, dtype=np.float64) - self.origin))
+        render_scene.add_surfels(self._tree, self.trace_options(lod_pixels, max_error), offset,
+                                 material)
+
+    def trace_options(self, lod_pixels: float | str | None = None, max_error: float | None = None):
+        """A copy of the traversal options, optionally with another LoD threshold, or with the
+        error budget (``lod_pixels="auto"``, ``max_error``: mean FLIP, see
+        :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "isa"):
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa"):
             setattr(o, k, getattr(self._options, k))
+        if isinstance(lod_pixels, str):
+            _, max_error = check_lod(lod_pixels, max_error)
+            o.lod = o.lod and max_error > 0
+            o.lod_criterion = _core.LodCriterion.budget
+            o.max_error = max_error
+            # The size rule joins the budget in proportion to it: at 1 px it costs up to
+            # SIZE_RULE_ERROR, so it runs at full strength once the budget covers that.
+            o.lod_pixels = min(1.0, max_error / SIZE_RULE_ERROR)
+            return o
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
                 raise InputError(f"lod_pixels: must be a non-negative number, got {lod_pixels!r}")
@@ -352,7 +375,8 @@ class SurfelScene:
 
     # -- queries ----------------------------------------------------------------------------
     def cast_rays(self, rays, *, pixel_angle: float | None = None, camera=None,
-                  lod_pixels: float | None = None, stats: bool = True) -> dict:
+                  lod_pixels: float | str | None = None, stats: bool = True,
+                  max_error: float | None = None) -> dict:
         """Closest hits with interpolated attributes.
 
         Parameters
@@ -364,8 +388,12 @@ class SurfelScene:
             camera) rays are traced at full detail.
         camera : Camera, optional
             Takes ``pixel_angle`` from the camera.
-        lod_pixels : float, optional
-            Overrides the scene's LoD threshold for this call; 0 disables LoD.
+        lod_pixels : float or "auto", optional
+            Overrides the scene's LoD threshold for this call; 0 disables LoD; "auto" stops
+            by the error budget ``max_error`` (see :func:`pointviz.render`).
+        stats : bool
+        max_error : float, optional
+            With ``lod_pixels="auto"``: the budget (mean FLIP).
 
         Returns
         -------
@@ -378,7 +406,7 @@ class SurfelScene:
         """
         arr = as_rays(rays)
         pa = _pixel_angle(pixel_angle, camera)
-        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels), pixel_angle=pa,
+        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels, max_error), pixel_angle=pa,
                              threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return out
@@ -434,6 +462,4 @@ def _pixel_angle(pixel_angle, camera) -> float:
 def _check_threads(threads):
     if threads is None:
         return None
-    if not (isinstance(threads, (int, np.integer)) and threads >= 1):
-        raise InputError(f"threads: must be a positive integer or None, got {threads!r}")
-    return int(threads)
+    return check_int(threads, "threads", note=" or None")

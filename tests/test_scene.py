@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import pointviz
-from pointviz import scene as scene_mod
+from pointviz import extent as extent_mod
 from pointviz.cloud import PointCloud
 from pointviz.scene import GROUND_OUTLIER_FRACTION, Scene, cloud_extent
 
@@ -47,13 +47,13 @@ def test_render_of_a_surfel_scene_scans_its_points_once(blob, monkeypatch):
     come from the SurfelScene's cache, not from a new pass over the points."""
     ss = pointviz.SurfelScene(blob)
     calls = []
-    real = scene_mod.cloud_extent
+    real = extent_mod.cloud_extent
 
     def counting(*args, **kw):
         calls.append(1)
         return real(*args, **kw)
 
-    monkeypatch.setattr(scene_mod, "cloud_extent", counting)
+    monkeypatch.setattr(extent_mod, "cloud_extent", counting)
     cam = pointviz.Camera.fit(blob, width=16, height=12)
     frames = [pointviz.render(ss, cam, spp=1) for _ in range(3)]
     assert len(calls) == 1
@@ -79,8 +79,8 @@ def test_a_cloud_scene_scans_its_points_once_across_the_tree_build(blob, monkeyp
     """Scene(cloud): bounds taken before the tree exists (Camera.fit) are reused once the cloud
     has become a SurfelScene inside render()."""
     calls = []
-    real = scene_mod.cloud_extent
-    monkeypatch.setattr(scene_mod, "cloud_extent",
+    real = extent_mod.cloud_extent
+    monkeypatch.setattr(extent_mod, "cloud_extent",
                         lambda *a, **kw: calls.append(1) or real(*a, **kw))
     scene = Scene(blob)
     cam = pointviz.Camera.fit(scene, width=16, height=12)
