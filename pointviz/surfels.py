@@ -53,6 +53,27 @@ AUTO_BOX_BYTES_PER_SURFEL = 1.5
 
 _ALL_LEVELS = 255
 
+#: Instruction sets of the traversal kernels ("auto": the best this CPU runs, :func:`best_isa`).
+ISAS = ("auto", "base", "sse42", "avx2", "avx512")
+
+
+def available_isas() -> tuple[str, ...]:
+    """The instruction sets whose kernels this build has and this CPU runs ("base" always).
+
+    Every one gives the same hits, bit for bit; they differ only in speed.
+
+    Returns
+    -------
+    tuple of str
+        Names from :data:`ISAS`, "base" first.
+    """
+    return tuple(name for name in ISAS[1:] if _core.isa_available(getattr(_core.Isa, name)))
+
+
+def best_isa() -> str:
+    """The instruction set that ``isa="auto"`` runs on this CPU (a name from :data:`ISAS`)."""
+    return _core.best_isa().name
+
 #: Most surfels in one tree (27 bits of index in the 32-byte node).
 MAX_SURFELS = 2**27 - 1
 
@@ -128,8 +149,16 @@ class SurfelScene:
     lod_criterion : {"size", "deviation"}
         When LoD stops descending: the paper's projected sphere size, or the projected deviation
         of the node from its mean plane (flat regions stop earlier).
+    isa : {"auto", "base", "sse42", "avx2", "avx512"}
+        Instruction set of the traversal kernels; "auto" (default) runs the best this CPU has
+        (:func:`best_isa`). Results never depend on it.
     threads : int, optional
         Worker threads for the build and queries; default all cores. Results never depend on it.
+    keep_cloud : bool
+        Keep a reference to ``cloud`` (default). ``False`` drops it once the tree is built (the
+        tree holds its own 32-byte copy of each surfel), so that the caller's arrays can be
+        freed: the largest clouds then need no second copy. Such a scene cannot be pickled, and
+        :meth:`extent` reads the tree's surfels instead.
     origin : (3,) float, optional
         Local frame origin; default the cloud's bounding-box centre (keeps float32 precise for
         georeferenced clouds).
@@ -138,8 +167,8 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
-                 lod_criterion: str = "size", slabs: bool = True,
-                 threads: int | None = None, origin=None):
+                 lod_criterion: str = "size", slabs: bool = True, isa: str = "auto",
+                 threads: int | None = None, origin=None, keep_cloud: bool = True):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
         interpolation = DEFAULT_INTERPOLATION if interpolation is None else interpolation
@@ -154,13 +183,21 @@ class SurfelScene:
             raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
         if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 31):
             raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
+        if not keep_cloud and VARIANTS[variant].get("tree") == "kdtree":
+            raise InputError("keep_cloud=False: the kdtree variant keeps no copy of the surfels "
+                             "to answer extent() from; use another variant or keep the cloud")
+        if isa not in ISAS:
+            raise InputError(f"isa: expected one of {ISAS}, got {isa!r}")
+        if isa != "auto" and isa not in available_isas():
+            raise InputError(f"isa: {isa!r} kernels do not run here (available: "
+                             f"{', '.join(available_isas())})")
         self.threads = _check_threads(threads)
         self.cloud = cloud
         # Everything needed to build the same tree again (pickling, distributed workers).
         self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
                                  box_depth=box_depth, lod_pixels=lod_pixels, window=window,
                                  leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
-                                 threads=threads, origin=origin)
+                                 isa=isa, threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -199,6 +236,10 @@ class SurfelScene:
             self._tree = _core.SurfelTree(*arrays, leaf_size=int(leaf_size),
                                           box_depth=int(min(bd, _ALL_LEVELS)),
                                           threads=self.threads or 0)
+        if not keep_cloud:
+            # Drop every reference to the caller's arrays and to this call's converted copies.
+            self.cloud = None
+            del arrays, points, colors
         self._options = _core.TraceOptions()
         self._options.lod = knobs["lod"]
         self._options.cull = knobs["cull"]
@@ -208,11 +249,14 @@ class SurfelScene:
         self._options.interpolation = getattr(_core.Interpolation, interpolation)
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
+        self._options.isa = getattr(_core.Isa, isa)
         self.last_stats: dict = {}
 
     def __reduce__(self):
         """Pickle as the cloud and the settings: the tree is rebuilt (deterministically) on load,
         so a scene sent to another process traces exactly the same hits."""
+        if self.cloud is None:
+            raise InputError("SurfelScene(keep_cloud=False) cannot be pickled: its cloud is gone")
         kwargs = dict(self._init_kwargs)
         kwargs["origin"] = self.origin  # the resolved origin, so the local frame is identical
         return (_rebuild, (self.cloud, kwargs))
@@ -279,16 +323,30 @@ class SurfelScene:
         """Bounds of the disks and the ground level along ``up`` (see
         :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
-        return self._per_up("_extents", up, lambda key: _extent_mod.cloud_extent(
-            self.cloud.points, getattr(self.cloud, "radii", None), key))
+        return self._per_up("_extents", up, self._compute_extent)
+
+    def _compute_extent(self, key: tuple):
+        if self.cloud is not None:
+            return _extent_mod.cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None),
+                                            key)
+        # keep_cloud=False: the tree's own surfels, in its local frame
+        view = self._tree.surfel_view()
+        lo, hi, level = _extent_mod.cloud_extent(view[:, :3], view[:, 3], key)
+        o = self.origin
+        return lo + o, hi + o, level + float(np.dot(o, key))
 
     def shape_kind(self, up) -> str:
         """``"terrain"`` or ``"object"`` (see :func:`pointviz.camera.shape_kind`, which picks the
         "auto" look), decided on first use per ``up`` and reused like :meth:`extent`."""
         from . import camera
 
-        return self._per_up("_shape_kinds", up,
-                            lambda key: camera.shape_kind(self.cloud.points, key))
+        def compute(key):
+            if self.cloud is not None:
+                return camera.shape_kind(self.cloud.points, key)
+            # keep_cloud=False: the tree's own surfel centres, back in world coordinates
+            return camera.shape_kind(self._tree.surfel_view()[:, :3] + self.origin, key)
+
+        return self._per_up("_shape_kinds", up, compute)
 
     def _per_up(self, name: str, up, compute):
         """``compute(up)`` cached in the dict attribute ``name``, keyed by the ``up`` tuple."""
@@ -312,7 +370,7 @@ class SurfelScene:
         :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "max_error"):
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa"):
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):
             _, max_error = check_lod(lod_pixels, max_error)

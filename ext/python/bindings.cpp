@@ -23,6 +23,7 @@
 #include <thread>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/kdtree.h"
 #include "pointviz/preprocess.h"
 #include "pointviz/render.h"
@@ -417,6 +418,15 @@ NB_MODULE(_core, m) {
         .value("paper", Interpolation::Paper)
         .value("smooth", Interpolation::Smooth);
 
+    nb::enum_<Isa>(m, "Isa")
+        .value("auto", Isa::Auto)
+        .value("base", Isa::Base)
+        .value("sse42", Isa::Sse42)
+        .value("avx2", Isa::Avx2)
+        .value("avx512", Isa::Avx512);
+    m.def("isa_available", &isa_available, "isa"_a);
+    m.def("best_isa", &best_isa);
+
     nb::enum_<LodCriterion>(m, "LodCriterion")
         .value("size", LodCriterion::Size)
         .value("deviation", LodCriterion::Deviation)
@@ -433,7 +443,8 @@ NB_MODULE(_core, m) {
         .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
         .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
-        .def_rw("max_error", &TraceOptions::max_error);
+        .def_rw("max_error", &TraceOptions::max_error)
+        .def_rw("isa", &TraceOptions::isa);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())
@@ -558,6 +569,14 @@ NB_MODULE(_core, m) {
         .def_prop_ro("level_start", &SurfelTree::level_start)
         .def_prop_ro("origin", [](const SurfelTree &t) -> std::array<double, 3> {
             return {t.origin()[0], t.origin()[1], t.origin()[2]};
+        })
+        .def("surfel_view", [](nb::handle self) {
+            // The stored surfels without a copy, (n, 8) float32 rows: centre (local frame),
+            // radius, normal, and the packed colour's bits; read-only, alive with the tree.
+            const SurfelTree &t = nb::cast<const SurfelTree &>(self);
+            size_t shape[2] = {t.surfels().size(), 8};
+            return nb::ndarray<nb::numpy, const float, nb::ndim<2>>(
+                reinterpret_cast<const float *>(t.surfels().data()), 2, shape, self);
         })
         .def("node_arrays", [](const SurfelTree &t) {
             // Decoded copies of the node fields, for tests and diagnostics.

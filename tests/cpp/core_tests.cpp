@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <random>
@@ -15,6 +16,7 @@
 #include <vector>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
@@ -247,6 +249,83 @@ void test_random_clouds_match_brute_force() {
                 check_against_brute(name.c_str(), cl, *tree, rays, bd, 1e-4);
             }
     }
+}
+
+/// Every instruction set's kernels give the portable kernels' answers bit for bit: closest hits
+/// (t, normal, colour, radius, index, count), any hits and the statistics, with level of detail,
+/// culling, interpolation, boxes and slabs on and off, on random clouds (including leaves of 1,
+/// 8 and 31 surfels: the eight-disk lanes with partial and several loads).
+void test_every_isa_equals_base() {
+    const double zero[3] = {0, 0, 0};
+    const std::vector<Isa> isas = available_isas();
+    CHECK(!isas.empty() && isas[0] == Isa::Base, "available_isas starts with base");
+    std::printf("core_tests: kernels checked against base:");
+    for (Isa isa : isas) std::printf(" %s", isa_name(isa));
+    std::printf(" (best %s)\n", isa_name(best_isa()));
+    for (int seed = 0; seed < 4; ++seed) {
+        std::mt19937_64 g(7000 + seed);
+        Cloud cl = random_sphere_cloud(g, seed < 2 ? 500 : 3000, 1.0, zero);
+        for (uint32_t leaf : {1u, 8u, 31u}) {
+            auto tree = build(cl, leaf, seed % 2 ? 4 : 0);
+            auto rays = random_rays(g, 400, zero, 4.0, 1.2);
+            const size_t n = rays.size() / 6;
+            std::vector<float> tmax(n);
+            for (size_t i = 0; i < n; ++i) tmax[i] = float(1.0 + 3.0 * double(i % 7) / 7.0);
+            for (int variant = 0; variant < 4; ++variant) {
+                TraceOptions o;
+                o.lod = variant >= 2;
+                o.cull = variant % 2 == 1;
+                o.slabs = variant != 1;
+                o.interp = variant == 0 ? Interpolation::None : Interpolation::Smooth;
+                o.box_depth = seed % 2 ? 4 : 0;
+                const float pa = o.lod ? 0.01f : 0.f;
+                struct Result {
+                    std::vector<float> t, nrm, col, rad;
+                    std::vector<int32_t> idx;
+                    std::vector<uint8_t> cnt, occ;
+                    BatchStats cs, os;
+                };
+                auto run = [&](Isa isa) {
+                    Result r;
+                    r.t.resize(n); r.nrm.resize(3 * n); r.col.resize(3 * n); r.rad.resize(n);
+                    r.idx.resize(n); r.cnt.resize(n); r.occ.resize(n);
+                    TraceOptions oi = o;
+                    oi.isa = isa;
+                    CastOutput out{r.t.data(), r.nrm.data(), r.col.data(), r.rad.data(),
+                                   r.idx.data(), r.cnt.data()};
+                    cast(*tree, rays.data(), n, oi, pa, 2, out, &r.cs);
+                    any_hits(*tree, rays.data(), tmax.data(), n, oi, 0.f, pa, 2, r.occ.data(), &r.os);
+                    return r;
+                };
+                const Result base = run(Isa::Base);
+                for (Isa isa : isas) {
+                    if (isa == Isa::Base) continue;
+                    const Result r = run(isa);
+                    auto same = [](const auto &a, const auto &b) {
+                        return a.size() == b.size() &&
+                               std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+                    };
+                    const bool ok = same(r.t, base.t) && same(r.nrm, base.nrm) &&
+                                    same(r.col, base.col) && same(r.rad, base.rad) &&
+                                    same(r.idx, base.idx) && same(r.cnt, base.cnt) &&
+                                    same(r.occ, base.occ) && r.cs.nodes == base.cs.nodes &&
+                                    r.cs.disks == base.cs.disks && r.cs.hits == base.cs.hits &&
+                                    r.os.nodes == base.os.nodes && r.os.hits == base.os.hits;
+                    CHECK(ok, "isa %s differs from base: seed %d leaf %u variant %d", isa_name(isa),
+                          seed, leaf, variant);
+                }
+            }
+        }
+    }
+    bool threw = false;
+    try {
+        TraceOptions o;
+        o.isa = Isa(200);
+        query_kernels(o.isa);
+    } catch (const std::invalid_argument &) {
+        threw = true;
+    }
+    CHECK(threw, "an unknown instruction set is refused");
 }
 
 void test_one_surfel() {
@@ -706,6 +785,7 @@ int main() {
     test_duplicates();
     test_line_and_plane();
     test_random_clouds_match_brute_force();
+    test_every_isa_equals_base();
     test_offset_precision();
     test_scales();
     test_degenerate_rays_and_surfels();

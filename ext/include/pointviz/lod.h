@@ -4,6 +4,7 @@
 
 #include <algorithm>
 
+#include "pointviz/isa.h"
 #include "pointviz/node.h"
 
 namespace pointviz {
@@ -25,6 +26,8 @@ constexpr float kBudgetFloor = 0.0005f;
 /// Largest node, in footprints, the budget may stop at: the calibrated range. Beyond it a flat
 /// node could hide a silhouette its spread does not predict.
 constexpr float kBudgetMaxExtent = 8.f;
+
+POINTVIZ_ISA_BEGIN
 
 /// Predicted error of stopping at `nd` (nodes without a cone never stop: caller's check).
 inline float predicted_error(const Node &nd) {
@@ -50,5 +53,7 @@ inline bool budget_allows(const Node &nd, float fp, float max_error, float size_
     return size <= size_pixels * fp ||
            colour + kBudgetScale * kSpreadWeight * std::min(nd.cone(), 1.f) <= budget;
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

@@ -15,9 +15,13 @@ namespace pointviz {
 /// rounding (under 3e-5 per component) is absorbed by kConeSlack.
 constexpr float kAxisScale = 32767.f;
 
+POINTVIZ_ISA_BEGIN
+
 inline int16_t quantize_axis(float v) {
     return int16_t(std::lround(std::clamp(v, -1.f, 1.f) * kAxisScale));
 }
+
+POINTVIZ_ISA_END
 
 /// Slack added to every cone's sine so that the 16-bit axis never makes culling unsafe.
 constexpr float kConeSlack = 1e-3f;
@@ -109,6 +113,8 @@ struct Box {
 };
 static_assert(sizeof(Box) == 24, "Box is a 24-byte contract");
 
+POINTVIZ_ISA_BEGIN
+
 /// Slab test. Returns the entry parameter, or +inf if the ray misses [tmin, tmax].
 inline float enter_box(const Box &b, Vec3 o, Vec3 inv_d, float tmin, float tmax) {
     float t0x = (b.lo.x - o.x) * inv_d.x, t1x = (b.hi.x - o.x) * inv_d.x;
@@ -159,5 +165,7 @@ inline float enter_sphere_slab(const Node &nd, Vec3 o, Vec3 d, float tmin, float
     }
     return t0 <= t1 ? t0 : kInf;
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

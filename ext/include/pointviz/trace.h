@@ -8,6 +8,8 @@
 #include <algorithm>
 #include <cstdint>
 
+#include "pointviz/disk_kernel.h"
+#include "pointviz/isa.h"
 #include "pointviz/leaf_simd.h"
 #include "pointviz/lod.h"
 #include "pointviz/tree.h"
@@ -43,7 +45,10 @@ struct TraceOptions {
     LodCriterion lod_criterion = LodCriterion::Size;
     float lod_max_extent = 8.f;  ///< Deviation only: never stop at nodes wider than this many footprints
     float max_error = 0.f;       ///< Budget only: mean FLIP the frame may lose to LoD (lod.h)
+    Isa isa = Isa::Auto;      ///< kernels of the batch queries (dispatch.h); all give the same results
 };
+
+POINTVIZ_ISA_BEGIN
 
 /// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
 inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOptions &opt) {
@@ -64,6 +69,8 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
     return size * spread <= fp && size <= opt.lod_max_extent * fp;
 }
 
+POINTVIZ_ISA_END
+
 /// What a closest-hit query returns.
 struct SurfaceHit {
     float t = kInf;        ///< blended ray parameter; kInf on a miss
@@ -73,6 +80,8 @@ struct SurfaceHit {
     int32_t index = -1;    ///< nearest surfel (tree order); -2 when it was a LoD node disk; -1 miss
     uint32_t count = 0;    ///< how many disks were blended
 };
+
+POINTVIZ_ISA_BEGIN
 
 /// Statistics hook that counts nothing (the fast path).
 struct NoStats {
@@ -220,10 +229,14 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
         if (skip) {
         } else if (nd.is_leaf()) {
             uint32_t b = nd.index(), cnt = nd.count();
+            // Every disk of a leaf is tested against the far bound at the leaf's start, as the
+            // eight-lane test does, so that both give the same hits (the closest-hit bound can
+            // grow when a nearer disk with a wider window arrives).
+            const float leaf_tfar = policy.tfar();
 #if defined(POINTVIZ_LEAF_SIMD)
             if (cnt <= 8) {
                 LeafHits lh;
-                intersect_leaf8(ray, &surfels[b], cnt, policy.tfar(), sub_cull, lh);
+                intersect_leaf8(ray, &surfels[b], cnt, leaf_tfar, sub_cull, lh);
                 for (uint32_t k = 0; k < cnt; ++k) stats.disk();
                 for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
                     uint32_t k = uint32_t(__builtin_ctz(m));
@@ -237,7 +250,7 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
                 stats.disk();
                 float facing;
                 DiskHit h;
-                if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), sub_cull, facing, h)) continue;
+                if (!intersect_disk(ray, s.p, s.n, s.r, leaf_tfar, sub_cull, facing, h)) continue;
                 if (policy.add({h.t, h.u2, facing, s.r, k})) return;
             }
         } else {
@@ -363,5 +376,7 @@ bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bo
     traverse(tree, ray, opt, cull, a, stats);
     return a.hit;
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz
