@@ -37,18 +37,20 @@ StrayResult find_stray_clusters(const double *points, const NeighbourTable &nb,
     if (n == 0) return res;
     constexpr size_t kGrain = 4096;
     if (progress) progress->total.fetch_add(2 * n, std::memory_order_relaxed);
-    // spacing: the nearest distinct neighbour in the point's own scan (duplicates and the other
-    // scans' layers lie closer, and would cut a scan's grid apart); the farthest listed
-    // neighbour when none of them is from its scan
+    // spacing: the rank-th nearest distinct neighbour in the point's own scan (duplicates and
+    // the other scans' layers lie closer, and would cut a scan's grid apart); the farthest
+    // listed neighbour when the row holds fewer of its scan
     std::vector<double> spacing(n, 0.0);
+    uint32_t rank = std::max<uint32_t>(opt.rank, 1);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
         for (size_t i = b; i < e; ++i) {
             const uint32_t *row = nb.row(i);
             double s = 0;
-            for (uint32_t m = 0; m < nb.k; ++m) {
+            uint32_t own = 0;
+            for (uint32_t m = 0; m < nb.k && own < rank; ++m) {
                 double d = distance(points + 3 * size_t(row[m]), points + 3 * i);
-                if (d > 0) s = d;  // the farthest so far, replaced below by the first own
-                if (d > 0 && (!group || group[row[m]] == group[i])) break;
+                if (d > 0) s = d;
+                if (d > 0 && (!group || group[row[m]] == group[i])) ++own;
             }
             spacing[i] = s;
         }
