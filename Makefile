@@ -37,22 +37,23 @@ test: build
 test-fast: build
 	$(PY) -m pytest -q -ra -m "not slow and not gui" $(PYTEST_ARGS)
 
-# The C++ core's tests under AddressSanitizer + UndefinedBehaviorSanitizer, twice: tuned for this
-# CPU (the AVX2 leaf test) and portable (its scalar fallback).
+# The C++ core's tests under AddressSanitizer + UndefinedBehaviorSanitizer, twice: with the
+# run-time dispatched kernels (every instruction set this CPU has, each checked against the
+# portable one) and scalar only (no SIMD anywhere).
 SANITIZE_ENV = ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
 sanitize: deps
-	cmake -S tests/cpp -B build/sanitize -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_NATIVE=ON >/dev/null
+	cmake -S tests/cpp -B build/sanitize -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_SCALAR=OFF >/dev/null
 	cmake --build build/sanitize -j2
 	$(SANITIZE_ENV) ./build/sanitize/core_tests
 	$(SANITIZE_ENV) ./build/sanitize/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize/reader_tests
 	$(SANITIZE_ENV) ./build/sanitize/preprocess_tests
-	cmake -S tests/cpp -B build/sanitize-portable -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_NATIVE=OFF >/dev/null
-	cmake --build build/sanitize-portable -j2
-	$(SANITIZE_ENV) ./build/sanitize-portable/core_tests
-	$(SANITIZE_ENV) ./build/sanitize-portable/kdtree_tests
-	$(SANITIZE_ENV) ./build/sanitize-portable/reader_tests
-	$(SANITIZE_ENV) ./build/sanitize-portable/preprocess_tests
+	cmake -S tests/cpp -B build/sanitize-scalar -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_SCALAR=ON >/dev/null
+	cmake --build build/sanitize-scalar -j2
+	$(SANITIZE_ENV) ./build/sanitize-scalar/core_tests
+	$(SANITIZE_ENV) ./build/sanitize-scalar/kdtree_tests
+	$(SANITIZE_ENV) ./build/sanitize-scalar/reader_tests
+	$(SANITIZE_ENV) ./build/sanitize-scalar/preprocess_tests
 
 bench: build
 	$(PY) benchmarks/bench_core.py

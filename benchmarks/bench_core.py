@@ -1,18 +1,27 @@
 """Core benchmark: pointviz's surfel tracer against Embree oriented discs on the same surfels.
 
-For each model (Armadillo surface-sampled to ``--sizes`` surfels; the registered dragon raw scans)
-and each thread count, measured in the same run on the same surfels, rays and threads:
+For each model (analytic sphere and torus samplings of ``--analytic-size`` surfels; Armadillo
+surface-sampled to ``--sizes`` surfels; the registered dragon raw scans) and each thread count,
+measured in the same run on the same surfels, rays and threads:
 
-* build time (s) and memory bytes per surfel (pointviz ``scene.memory_bytes / n``; Embree: bytes
-  its allocator holds after the build / n, plus the 28 B/surfel of its input buffers, and the build
-  peak);
+* build time (s), by wall clock around the whole Python-visible call on both sides (the
+  ``SurfelScene`` constructor; ``EmbreeScene.discs``), and memory bytes per surfel (pointviz
+  ``scene.memory_bytes / n``; Embree: bytes its allocator holds after the build / n, plus the
+  28 B/surfel of its input buffers, and the build peak);
 * Mrays/s for closest hit and for occlusion (any hit in (0, tmax), tmax = U(0.5, 1.5) x the Embree
   disc hit distance, so about half the hit rays are occluded), on coherent primary rays and on
   incoherent random rays; for Embree both single rays and packets of 4/8/16, the fastest reported;
 * hit agreement of pointviz with Embree discs (fraction of rays both hit or both miss; median
   |Δt| over rays both hit, relative to the model diagonal);
 * ratios pointviz / Embree discs (throughput: >1 means pointviz is faster; build time: >1 means
-  pointviz is slower);
+  pointviz is slower). What is compared: pointviz's default ``full`` variant (boxes near the top,
+  normal-cone culling, level of detail when a pixel angle is given: none here) *with* the
+  interpolation of the disks around each hit, against Embree's two-sided oriented discs (nearest
+  disc only). pointviz runs without statistics (``stats=False``), as Embree counts nothing. The
+  one-sided Embree variant (back-facing discs filtered, the semantics of culling) is reported
+  beside it, measured right after (not interleaved);
+* Mrays/s per core (throughput / threads), the figure to hold against tinybvh-class CPU
+  tracers;
 * anchors on the source mesh with the same rays: Embree triangles (same harness) and Open3D's
   ``RaycastingScene``;
 * peak RSS after each phase.
@@ -65,6 +74,8 @@ QUICK_SIZE = 20_000
 QUICK_WIDTH, QUICK_HEIGHT = 64, 48
 
 DEFAULT_SIZES = "1e6,3.6e6"
+DEFAULT_ANALYTIC_SIZE = 400_000
+DEFAULT_MODELS = "sphere,torus,dragon"
 DEFAULT_WIDTH, DEFAULT_HEIGHT = 640, 480
 DEFAULT_REPEAT = 3
 # Builds are long at 3.6M surfels; two alternating builds per engine tame the load of other jobs.
@@ -121,6 +132,32 @@ def armadillo_model(data: Path, n: int, probe: common.PointvizProbe, workers: in
     label = f"armadillo-{n / 1e6:g}M" if n >= 100_000 else f"armadillo-{n // 1000}k"
     return common.SurfelModel(label, common.as_float32(points), common.as_float32(normals),
                               common.as_float32(radii), vertices, faces, notes, cloud)
+
+
+def analytic_model(shape: str, n: int, probe: common.PointvizProbe) -> common.SurfelModel:
+    """A sphere or torus sampled by pointviz.shapes (exact normals, lattice or Voronoi radii).
+
+    Parameters
+    ----------
+    shape : {"sphere", "torus"}
+    n : int
+        Number of surfels.
+    probe : PointvizProbe
+        pointviz must be usable (the samplings are its own).
+
+    Returns
+    -------
+    SurfelModel
+    """
+    if not probe.available:
+        raise common.DataMissingError(f"{shape}: the analytic samplings need pointviz")
+    import importlib
+
+    cloud = getattr(importlib.import_module("pointviz.shapes"), shape)(n)
+    points, normals, radii = _cloud_arrays(cloud)
+    label = f"{shape}-{n / 1e6:g}M" if n >= 1_000_000 else f"{shape}-{n // 1000}k"
+    notes = {"source": f"pointviz.shapes.{shape}({n})", "normals": "analytic"}
+    return common.SurfelModel(label, points, normals, radii, None, None, notes, cloud)
 
 
 def dragon_model(data: Path, probe: common.PointvizProbe, workers: int,
@@ -307,24 +344,28 @@ def build_pair(model: common.SurfelModel, args, probe: common.PointvizProbe, thr
     pv : object or None
         The last pointviz.SurfelScene, or None without pointviz.
     builds : dict
-        Fastest build seconds: ``embree``, ``pointviz`` (and ``pointviz_wall``).
+        Fastest build seconds by wall clock around the Python call: ``embree``, ``pointviz``;
+        and by the engines' own timers: ``embree_core``, ``pointviz_core``.
     """
-    builds = {"embree": math.inf, "pointviz": math.inf, "pointviz_wall": math.inf}
+    builds = {"embree": math.inf, "pointviz": math.inf, "embree_core": math.inf,
+              "pointviz_core": math.inf}
     embree = pv = None
     for _ in range(max(1, args.build_repeat)):
         if embree is not None:
             embree.close()
         pv = None  # release the previous pointviz scene before building the next
+        start = time.perf_counter()
         embree = EmbreeScene.discs(model.points, model.normals, model.radii, threads=threads,
                                    quality=args.quality)
-        builds["embree"] = min(builds["embree"], embree.build_seconds)
+        builds["embree"] = min(builds["embree"], time.perf_counter() - start)
+        builds["embree_core"] = min(builds["embree_core"], embree.build_seconds)
         if probe.available and model.cloud is not None:
             start = time.perf_counter()
             pv = probe.module.SurfelScene(model.cloud, variant=args.variant, threads=threads)
             wall = time.perf_counter() - start
-            builds["pointviz_wall"] = min(builds["pointviz_wall"], wall)
-            builds["pointviz"] = min(builds["pointviz"],
-                                     float(getattr(pv, "build_seconds", wall) or wall))
+            builds["pointviz"] = min(builds["pointviz"], wall)
+            builds["pointviz_core"] = min(builds["pointviz_core"],
+                                          float(getattr(pv, "build_seconds", wall) or wall))
     return embree, pv, builds
 
 
@@ -340,14 +381,21 @@ def paired_throughput(embree: EmbreeScene, pv, rays: np.ndarray, tmax: np.ndarra
             "embree_occluded": math.inf, "pointviz_occluded": math.inf}
     calls = {
         "embree_closest": lambda: embree.intersect(rays, mode=modes[0]),
-        "pointviz_closest": lambda: pv.cast_rays(rays),
+        "pointviz_closest": lambda: pv.cast_rays(rays, stats=False),
         "embree_occluded": lambda: embree.occluded(rays, tmax, mode=modes[1]),
-        "pointviz_occluded": lambda: pv.occluded(rays, tmax),
+        "pointviz_occluded": lambda: pv.occluded(rays, tmax, stats=False),
     }
     for _ in range(max(1, repeat)):
         for key, fn in calls.items():
             best[key] = min(best[key], common.time_best(fn, 1)[0])
     return {key: mrays(n, sec) for key, sec in best.items()}
+
+
+def _pointviz_isa() -> str:
+    """The instruction set of pointviz's traversal kernels ("?" for builds before dispatch)."""
+    import importlib
+
+    return getattr(importlib.import_module("pointviz.surfels"), "best_isa", lambda: "?")()
 
 
 def _mode_number(label: str) -> int:
@@ -374,7 +422,8 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
         scene, pv, builds = build_pair(model, args, probe, threads)
         try:
             # Embree discs (the reference for tmax and agreement): every query mode.
-            rec["embree_discs"] = {"build_s": builds["embree"], "quality": args.quality,
+            rec["embree_discs"] = {"build_s": builds["embree"],
+                                   "build_core_s": builds["embree_core"], "quality": args.quality,
                                    **embree_memory(scene, model.n), "device": scene.device_info()}
             rec["rss_after_builds"] = common.peak_rss_bytes()
             for set_name, rays in ray_sets.items():
@@ -390,7 +439,8 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
             # pointviz, interleaved with Embree discs at their best modes.
             if pv is not None:
                 rec["pointviz"] = {"build_s": builds["pointviz"],
-                                   "build_wall_s": builds["pointviz_wall"],
+                                   "build_core_s": builds["pointviz_core"],
+                                   "isa": _pointviz_isa(),
                                    "variant": args.variant, "memory_bytes": int(pv.memory_bytes),
                                    "bytes_per_surfel": pv.memory_bytes / model.n}
                 for set_name, rays in ray_sets.items():
@@ -422,6 +472,8 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                                                 / paired["embree_occluded"]),
                     }
                 rec["ratios"]["build_time"] = builds["pointviz"] / builds["embree"]
+                rec["ratios"]["build_time_core_timers"] = (builds["pointviz_core"]
+                                                           / builds["embree_core"])
                 rec["ratios"]["bytes_per_surfel"] = (rec["pointviz"]["bytes_per_surfel"]
                                                      / rec["embree_discs"]["bytes_per_surfel"])
         finally:
@@ -444,6 +496,12 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                         m["agreement_vs_pointviz"] = agreement(
                             rec["pointviz"][set_name]["t_hit"], m["t_hit"], model.diagonal)
                     rec["embree_discs_one_sided"][set_name] = m
+                    if rec["pointviz"]:
+                        pv_rec = rec["pointviz"][set_name]
+                        rec["ratios"][set_name]["closest_vs_one_sided"] = (
+                            pv_rec["closest_best"] / m["closest_best"])
+                        rec["ratios"][set_name]["occluded_vs_one_sided"] = (
+                            pv_rec["occluded_best"] / m["occluded_best"])
         # Embree triangles and Open3D on the source mesh.
         if model.mesh_faces is not None and not args.no_anchors:
             with EmbreeScene.triangles(model.mesh_vertices, model.mesh_faces, threads=threads,
@@ -529,12 +587,20 @@ def print_rows(model: common.SurfelModel, threads: int, rec: dict) -> None:
               f"{r['random']['closest_throughput']:.2f}x (random), occlusion "
               f"{r['primary']['occluded_throughput']:.2f}x / {r['random']['occluded_throughput']:.2f}x"
               " (interleaved runs)")
+        print(f"{'':>7}   build by the engines' own timers: "
+              f"{r['build_time_core_timers']:.2f}x; pointviz kernels: {rec['pointviz']['isa']}")
         for set_name in ("primary", "random"):
             pe = rec["pointviz"][set_name]["paired_embree"]
+            pvr = rec["pointviz"][set_name]
             print(f"{'':>7}   interleaved {set_name}: embree discs closest {pe['closest']:.3g} / "
                   f"occl {pe['occluded']:.3g} Mr/s; pointviz "
-                  f"{rec['pointviz'][set_name]['closest_best']:.3g} / "
-                  f"{rec['pointviz'][set_name]['occluded_best']:.3g} Mr/s")
+                  f"{pvr['closest_best']:.3g} / {pvr['occluded_best']:.3g} Mr/s "
+                  f"({pvr['closest_best'] / threads:.3g} / {pvr['occluded_best'] / threads:.3g} "
+                  "Mr/s per core)")
+            if "closest_vs_one_sided" in r[set_name]:
+                print(f"{'':>7}   vs one-sided embree discs ({set_name}, not interleaved): closest "
+                      f"{r[set_name]['closest_vs_one_sided']:.2f}x, occlusion "
+                      f"{r[set_name]['occluded_vs_one_sided']:.2f}x")
     ed = rec["embree_discs"]
     print(f"{'':>7} embree discs: BVH {ed['bvh_bytes_per_surfel']:.1f} B/surfel + input 28 B; "
           f"build peak {ed['build_peak_bytes_per_surfel']:.1f} B/surfel; "
@@ -567,8 +633,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="shared data folder (default: <repo>/../shared/data)")
     p.add_argument("--sizes", default=DEFAULT_SIZES,
                    help="Armadillo surfel counts, comma separated (default %(default)s)")
-    p.add_argument("--models", default="armadillo,dragon",
-                   help="which models: armadillo, dragon (default %(default)s)")
+    p.add_argument("--models", default=DEFAULT_MODELS,
+                   help="which models: sphere, torus, armadillo, dragon (default %(default)s)")
+    p.add_argument("--analytic-size", type=lambda v: int(float(v)), default=DEFAULT_ANALYTIC_SIZE,
+                   help="surfels of the sphere and torus samplings (default %(default)s)")
     p.add_argument("--threads", default=DEFAULT_THREADS,
                    help="thread counts, comma separated (default %(default)s)")
     p.add_argument("--width", type=int, default=DEFAULT_WIDTH)
@@ -595,6 +663,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.models = [m.strip() for m in args.models.split(",") if m.strip()]
     if args.quick:
         args.sizes, args.width, args.height = [QUICK_SIZE], QUICK_WIDTH, QUICK_HEIGHT
+        args.analytic_size = QUICK_SIZE
         args.repeat = args.build_repeat = 1
     return args
 
@@ -611,7 +680,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"NOTE: {probe.reason}; the pointviz columns and ratios are skipped "
               "(Embree and Open3D baselines only).")
     workers = max(args.threads)
-    builders = []
+    builders = [lambda s=shape: analytic_model(s, args.analytic_size, probe)
+                for shape in ("sphere", "torus") if shape in args.models]
     if "armadillo" in args.models:
         builders += [lambda n=n: armadillo_model(args.data, n, probe, workers) for n in args.sizes]
     if "dragon" in args.models:

@@ -9,16 +9,27 @@ same surfels and rays. Builds and queries of the two engines are interleaved and
 ``--repeat`` times (median), so the ratios compare runs made moments apart on this shared
 machine. Times are wall clock (``--clock``); the process CPU time is recorded too.
 
+``--whole-process`` measures what one machine holds instead: for each size a fresh process
+samples a unit sphere (Fibonacci lattice, generated in chunks straight into the arrays a
+``PointCloud`` keeps), builds the ``full`` scene by wall clock, drops the cloud
+(``SurfelScene(keep_cloud=False)``) and traces 400x400 primary rays; its peak resident set
+(``VmHWM`` in /proc/self/status) over the surfel count is the whole process's bytes per surfel,
+Python arrays, build temporaries and interpreter included.
+
 Examples
 --------
 python benchmarks/bench_scaling.py --quick
 python benchmarks/bench_scaling.py --max 3e6
 python benchmarks/bench_scaling.py            # up to 20M surfels (~15 min, ~8 GB)
+python benchmarks/bench_scaling.py --whole-process --sizes 1e6,1e7,1e8 --threads-list 2
 """
 
 from __future__ import annotations
 
 import gc
+import json
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -104,6 +115,130 @@ def measure_size(model: pf.Model, args) -> dict:
     return rec
 
 
+#: Lattice points generated per chunk: bounds the float64 temporaries of the sampling.
+SAMPLE_CHUNK = 1 << 22
+#: Image of the whole-process runs (the paper's 400 x 400 primary rays).
+WHOLE_PROCESS_PIXELS = 400
+
+
+def peak_rss_whole_process() -> int:
+    """Peak resident set of this process so far (VmHWM), in bytes."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    raise RuntimeError("/proc/self/status has no VmHWM")
+
+
+def sphere_cloud_chunked(n: int):
+    """A unit sphere of ``n`` surfels (Fibonacci lattice), built chunk by chunk.
+
+    Positions go straight into the float64 array the PointCloud keeps, normals (equal to the
+    positions on a unit sphere) into its float32 array; radii are one constant.
+
+    Returns
+    -------
+    PointCloud
+    """
+    import pointviz
+    from pointviz.shapes import LATTICE_RADIUS_FACTOR
+
+    points = np.empty((n, 3), np.float64)
+    normals = np.empty((n, 3), np.float32)
+    golden = np.pi * (1.0 + 5.0**0.5)
+    for b in range(0, n, SAMPLE_CHUNK):
+        i = np.arange(b, min(n, b + SAMPLE_CHUNK), dtype=np.float64) + 0.5
+        z = 1.0 - 2.0 * i / n
+        r = np.sqrt(1.0 - z * z)
+        phi = golden * i
+        points[b:b + len(i), 0] = r * np.cos(phi)
+        points[b:b + len(i), 1] = r * np.sin(phi)
+        points[b:b + len(i), 2] = z
+        normals[b:b + len(i)] = points[b:b + len(i)]
+    radii = np.full(n, LATTICE_RADIUS_FACTOR * np.sqrt(4 * np.pi / n), np.float32)
+    return pointviz.PointCloud(points, normals=normals, radii=radii)
+
+
+def one_process(n: int, threads: int) -> dict:
+    """The measurement of one ``--whole-process`` size, in this (fresh) process."""
+    import pointviz
+
+    base = peak_rss_whole_process()
+    start = time.perf_counter()
+    cloud = sphere_cloud_chunked(n)
+    sample_s = time.perf_counter() - start
+    cam = pointviz.Camera.fit(cloud, width=WHOLE_PROCESS_PIXELS, height=WHOLE_PROCESS_PIXELS)
+    rays = np.asarray(cam.rays(), dtype=np.float32)
+    start = time.perf_counter()
+    scene = pointviz.SurfelScene(cloud, variant="full", threads=threads, keep_cloud=False)
+    build_s = time.perf_counter() - start
+    del cloud
+    gc.collect()
+    after_build = peak_rss_whole_process()
+    best = float("inf")
+    for _ in range(3):
+        start = time.perf_counter()
+        out = scene.cast_rays(rays, camera=cam, stats=False)
+        best = min(best, time.perf_counter() - start)
+    peak = peak_rss_whole_process()
+    return {"n": n, "threads": threads, "sample_s": sample_s, "build_s": build_s,
+            "mrays": len(rays) / best / 1e6,
+            "hit_fraction": float(np.isfinite(out["t_hit"]).mean()),
+            "memory_bytes_per_surfel": scene.memory_bytes / n,
+            "peak_rss_bytes": peak, "peak_rss_per_surfel": peak / n,
+            "peak_rss_build_per_surfel": after_build / n, "interpreter_rss_bytes": base}
+
+
+def whole_process(sizes: list[int], threads_list: list[int], out: Path) -> int:
+    """Run ``one_process`` in a fresh interpreter per size and thread count; print and save."""
+    print(f"{'surfels':>13}{'thr':>4}{'sample s':>9}{'build s':>9}{'Mr/s':>8}{'core B/s':>9}"
+          f"{'peak B/s':>9}{'peak GB':>8}")
+    rows = []
+    for n in sizes:
+        for threads in threads_list:
+            cmd = [sys.executable, __file__, "--one", str(n), "--threads-list", str(threads)]
+            proc = subprocess.run(cmd, capture_output=True, text=True)
+            if proc.returncode != 0:
+                print(f"{n:>13,}{threads:>4}  failed: {proc.stderr.strip().splitlines()[-1:]}")
+                continue
+            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            rows.append(r)
+            print(f"{n:>13,}{threads:>4}{r['sample_s']:>9.1f}{r['build_s']:>9.1f}{r['mrays']:>8.2f}"
+                  f"{r['memory_bytes_per_surfel']:>9.1f}{r['peak_rss_per_surfel']:>9.1f}"
+                  f"{r['peak_rss_bytes'] / 2**30:>8.2f}", flush=True)
+            pf.write_json(out, "scaling_whole_process.json",
+                          {"benchmark": "scaling (whole process)", "machine": pf.machine_info(),
+                           "date": time.strftime("%Y-%m-%dT%H:%M:%S"), "rows": rows})
+    if rows:
+        print(f"wrote {chart_whole_process(rows, out)}")
+    return 0
+
+
+def chart_whole_process(rows: list, out_dir: Path) -> Path:
+    """Build time, bytes per surfel (core and whole-process peak) and Mrays/s against size."""
+    plt = pf.pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    for t in sorted({r["threads"] for r in rows}):
+        sel = [r for r in rows if r["threads"] == t]
+        n = [r["n"] for r in sel]
+        axes[0].plot(n, [r["build_s"] for r in sel], "-o", ms=3, label=f"build, {t} thr")
+        axes[1].plot(n, [r["peak_rss_per_surfel"] for r in sel], "-o", ms=3,
+                     label=f"whole process peak (VmHWM), {t} thr")
+        axes[1].plot(n, [r["memory_bytes_per_surfel"] for r in sel], "--s", ms=3,
+                     label="core (memory_bytes)")
+        axes[2].plot(n, [r["mrays"] for r in sel], "-o", ms=3, label=f"{t} thr")
+    px = WHOLE_PROCESS_PIXELS
+    for ax, title in zip(axes, ("build time (s, wall)", "bytes / surfel",
+                                f"primary Mrays/s ({px}x{px})")):
+        ax.set_xscale("log")
+        ax.set_xlabel("surfels")
+        ax.set_title(title)
+        ax.legend(fontsize=7)
+    axes[0].set_yscale("log")
+    fig.suptitle("One process per size: unit sphere sampled in chunks, full variant")
+    return pf.save_figure(fig, out_dir, "scaling_whole_process.png")
+
+
 def print_row(rec: dict) -> None:
     """One line per (size, threads)."""
     for t, r in rec["threads"].items():
@@ -145,6 +280,13 @@ def chart(rows: list, out_dir: Path) -> Path:
     return pf.save_figure(fig, out_dir, "scaling.png")
 
 
+def argparse_hidden() -> str:
+    """Help text of the internal --one option (one size, in the child process)."""
+    import argparse
+
+    return argparse.SUPPRESS
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the scaling sweep; print the table, write JSON and a PNG; return the exit code."""
     p = pf.base_parser(__doc__.split("\n\n")[0], "scaling")
@@ -153,8 +295,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads-list", default="1,2", help="thread counts (default 1,2)")
     p.add_argument("--build-repeat", type=int, default=2,
                    help="builds per engine and thread count, alternating (median)")
+    p.add_argument("--whole-process", action="store_true",
+                   help="peak RSS of a fresh process per size (sphere sampled in chunks)")
+    p.add_argument("--sizes", default="1e6,1e7",
+                   help="--whole-process sizes, comma separated (default %(default)s)")
+    p.add_argument("--one", type=float, default=None, help=argparse_hidden())
     args = p.parse_args(argv)
     args.threads_list = [int(t) for t in args.threads_list.split(",") if t.strip()]
+    if args.one is not None:
+        print(json.dumps(one_process(int(args.one), args.threads_list[0])))
+        return 0
+    if args.whole_process:
+        sizes = [int(float(v)) for v in args.sizes.split(",") if v.strip()]
+        return whole_process(sizes, args.threads_list, args.out)
     sizes = QUICK_SIZES if args.quick else tuple(s for s in SIZES if s <= args.max)
     if args.quick:
         args.repeat = args.build_repeat = 1

@@ -41,8 +41,14 @@ TARGET_S = 0.100
 CALL_TIMEOUT_S = 30.0
 #: Variants: (name, render at lower priority, tracer threads: 0 = all cores, -1 = all but one,
 #: None = no render at all: the anchor, what the GUI costs by itself on this machine).
+#: A variant's optional fourth entry is Python run in the viewer process before the window opens
+#: (to switch one suspect off), the fifth extra environment variables.
 VARIANTS = (("normal, all cores", False, 0), ("nice, all cores", True, 0),
             ("normal, cores-1", False, -1), ("nice, cores-1", True, -1),
+            ("nice, cores-1, progress redraws 10x rarer", True, -1,
+             "worker.PROGRESS_INTERVAL_S = 10 * worker.PROGRESS_INTERVAL_S"),
+            ("nice, cores-1, LP_NUM_THREADS=1", True, -1, "", {"LP_NUM_THREADS": "1"}),
+            ("nice, cores-1, switchinterval 1ms", True, -1, "sys.setswitchinterval(0.001)"),
             ("no render (anchor)", True, None))
 
 DRIVER = """
@@ -51,6 +57,7 @@ import numpy as np
 import pointviz
 from pointviz.viewer import worker
 worker.RENDER_IN_BACKGROUND = {background}
+{setup}
 {load_cloud}
 res = {{}}
 
@@ -95,14 +102,15 @@ cloud = sphere(200000, color=(0.8, 0.35, 0.2))
 """
 
 
-def run_variant(background: bool, threads: int, load_cloud: str) -> dict:
+def run_variant(background: bool, threads: int, load_cloud: str, setup: str = "",
+                env: dict | None = None) -> dict:
     n = os.cpu_count() or 1
     t = n if threads == 0 else max(1, n - 1)  # explicit: the viewer's default is cores-1
     script = DRIVER.format(background=background, load_cloud=textwrap.dedent(load_cloud),
                            calls=CALLS, spacing=CALL_SPACING_S, threads=t, timeout=CALL_TIMEOUT_S,
-                           render=threads is not None)
+                           render=threads is not None, setup=setup)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=900, check=False)
+                         timeout=900, check=False, env={**os.environ, **(env or {})})
     lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
     if not lines:
         raise RuntimeError(f"viewer run failed ({out.returncode}):\n{out.stderr[-3000:]}")
@@ -123,6 +131,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=1, help="interleaved rounds of every variant")
     ap.add_argument("--data", type=Path, default=default_data_dir())
     ap.add_argument("--out", type=Path, default=HERE / "results" / "viewer" / "viewer.json")
+    ap.add_argument("--only", action="append", metavar="TEXT",
+                    help="run only the variants whose name contains TEXT (repeatable; the "
+                         "first variant, the ratios' base, always runs)")
     args = ap.parse_args(argv)
     if not os.environ.get("DISPLAY"):
         print("bench_viewer: no X display; run it under xvfb-run -a", file=sys.stderr)
@@ -130,16 +141,18 @@ def main(argv=None) -> int:
     dragon = args.data / DRAGON_CONF
     load_cloud = DRAGON.format(path=str(dragon)) if dragon.exists() else SPHERE
     data_name = "dragon scans (dragonStandRight.conf)" if dragon.exists() else "sphere(200000)"
+    selected = [v for i, v in enumerate(VARIANTS)
+                if i == 0 or not args.only or any(t in v[0] for t in args.only)]
     samples: dict = {}
     for _ in range(args.rounds):
         for condition in ("idle", "loaded"):
             load = busy_processes(LOAD_PROCESSES) if condition == "loaded" else []
             try:
-                for name, background, threads in VARIANTS:
-                    res = run_variant(background, threads, load_cloud)
+                for name, background, threads, *extra in selected:
+                    res = run_variant(background, threads, load_cloud, *extra)
                     samples.setdefault((condition, name), []).extend(res["latency_s"])
                     lat = np.array(res["latency_s"]) * 1e3
-                    print(f"{condition:6s} {name:18s} median {np.median(lat):6.1f} ms  "
+                    print(f"{condition:6s} {name:34s} median {np.median(lat):6.1f} ms  "
                           f"p95 {np.percentile(lat, 95):6.1f} ms  max {lat.max():6.1f} ms",
                           flush=True)
             finally:
@@ -161,10 +174,10 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1))
     print(f"\n{data_name}, {os.cpu_count()} cores, {CALLS * args.rounds} calls per cell")
-    print(f"{'condition':9s} {'variant':18s} {'median':>8s} {'p95':>8s} {'max':>8s} "
+    print(f"{'condition':9s} {'variant':34s} {'median':>8s} {'p95':>8s} {'max':>8s} "
           f"{'<=100ms':>8s} {'p95/normal':>10s}")
     for r in rows:
-        print(f"{r['condition']:9s} {r['variant']:18s} {r['median_s'] * 1e3:7.1f}m "
+        print(f"{r['condition']:9s} {r['variant']:34s} {r['median_s'] * 1e3:7.1f}m "
               f"{r['p95_s'] * 1e3:7.1f}m {r['max_s'] * 1e3:7.1f}m {r['within_target']:8.0%} "
               f"{r['p95_ratio_to_normal_all_cores']:10.2f}")
     print(f"wrote {args.out}")

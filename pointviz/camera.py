@@ -26,12 +26,14 @@ import json
 import math
 import numbers
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .errors import FileFormatError, InputError, require
+from .frozen import ArrayValue, set_fields
 
 #: Largest accepted image width or height, in pixels.
 MAX_IMAGE_SIZE = 16384
@@ -355,12 +357,15 @@ def _fill_frame(camera: Camera, pts: np.ndarray, outliers: float, margin: float)
     q = (outliers / 2, 1.0 - outliers / 2) if outliers > 0 else None
     centre0 = camera.target
 
+    # the points along the camera's axes once: each eye below only shifts them (155 calls on
+    # a FIT_SAMPLE-point sample for a default fit)
+    along_f, along_r, along_u = pts @ f, pts @ r, pts @ u
+
     def bounds(eye):
-        rel = pts - eye
-        depth = rel @ f
+        depth = along_f - eye @ f
         if not np.all(depth > 0):
             return None
-        x, y = (rel @ r) / depth, (rel @ u) / depth
+        x, y = (along_r - eye @ r) / depth, (along_u - eye @ u) / depth
         if q is None:
             return x.min(), x.max(), y.min(), y.max()
         (x0, x1), (y0, y1) = np.quantile(x, q), np.quantile(y, q)
@@ -447,7 +452,8 @@ def _json_dumps(data: Any) -> str:
 # ---------------------------------------------------------------------------------------- Camera
 
 
-class Camera:
+@dataclass(frozen=True, eq=False, repr=False)
+class Camera(ArrayValue):
     """Immutable pinhole camera (the renderer's ray model; see the module docstring).
 
     Parameters
@@ -469,36 +475,26 @@ class Camera:
         For any invalid argument; the message names it.
     """
 
-    __slots__ = (
-        "_eye",
-        "_forward",
-        "_fov_deg",
-        "_height",
-        "_right",
-        "_target",
-        "_true_up",
-        "_up",
-        "_width",
-    )
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray = DEFAULT_UP
+    fov_deg: float = DEFAULT_FOV_DEG
+    width: int = DEFAULT_WIDTH
+    height: int = DEFAULT_HEIGHT
+    #: Unit view direction ``normalize(target - eye)``; shape (3,), float64.
+    forward: np.ndarray = field(init=False, repr=False)
+    #: Unit ``normalize(cross(forward, up))``; shape (3,), float64.
+    right: np.ndarray = field(init=False, repr=False)
+    #: Unit ``cross(right, forward)``; shape (3,), float64.
+    true_up: np.ndarray = field(init=False, repr=False)
 
-    def __init__(
-        self,
-        eye: Any,
-        target: Any,
-        up: Any = DEFAULT_UP,
-        fov_deg: float = DEFAULT_FOV_DEG,
-        width: int = DEFAULT_WIDTH,
-        height: int = DEFAULT_HEIGHT,
-    ) -> None:
-        self._eye = _vec3(eye, "eye")
-        self._target = _vec3(target, "target")
-        self._up = _vec3(up, "up")
-        self._fov_deg = _fov(fov_deg)
-        self._width = _size(width, "width")
-        self._height = _size(height, "height")
-        self._forward, self._right, self._true_up = view_basis(self._eye, self._target, self._up)
-        for arr in (self._eye, self._target, self._up, self._forward, self._right, self._true_up):
-            arr.setflags(write=False)
+    def __post_init__(self) -> None:
+        eye, target, up = _vec3(self.eye, "eye"), _vec3(self.target, "target"), _vec3(self.up, "up")
+        fov_deg = _fov(self.fov_deg)
+        width, height = _size(self.width, "width"), _size(self.height, "height")
+        forward, right, true_up = view_basis(eye, target, up)
+        set_fields(self, eye=eye, target=target, up=up, fov_deg=fov_deg, width=width,
+                   height=height, forward=forward, right=right, true_up=true_up)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -723,72 +719,29 @@ class Camera:
 
     # ------------------------------------------------------------------ attributes
     @property
-    def eye(self) -> np.ndarray:
-        """ndarray, shape (3,), float64 (read-only)."""
-        return self._eye
-
-    @property
-    def target(self) -> np.ndarray:
-        """ndarray, shape (3,), float64 (read-only)."""
-        return self._target
-
-    @property
-    def up(self) -> np.ndarray:
-        """Up hint as given; ndarray, shape (3,), float64 (read-only)."""
-        return self._up
-
-    @property
-    def fov_deg(self) -> float:
-        """Vertical field of view, degrees."""
-        return self._fov_deg
-
-    @property
-    def width(self) -> int:
-        return self._width
-
-    @property
-    def height(self) -> int:
-        return self._height
-
-    @property
-    def forward(self) -> np.ndarray:
-        """Unit view direction ``normalize(target - eye)``; shape (3,), float64."""
-        return self._forward
-
-    @property
-    def right(self) -> np.ndarray:
-        """Unit ``normalize(cross(forward, up))``; shape (3,), float64."""
-        return self._right
-
-    @property
-    def true_up(self) -> np.ndarray:
-        """Unit ``cross(right, forward)``; shape (3,), float64."""
-        return self._true_up
-
-    @property
     def aspect(self) -> float:
         """``width / height``."""
-        return self._width / self._height
+        return self.width / self.height
 
     @property
     def tan_half(self) -> float:
         """``tan(radians(fov_deg) / 2)``."""
-        return math.tan(math.radians(self._fov_deg) / 2.0)
+        return math.tan(math.radians(self.fov_deg) / 2.0)
 
     @property
     def pixel_angle(self) -> float:
         """Angle in radians subtended by one pixel at the image centre."""
-        return 2.0 * math.atan(self.tan_half / self._height)
+        return 2.0 * math.atan(self.tan_half / self.height)
 
     @property
     def distance(self) -> float:
         """``|target - eye|``."""
-        return float(np.linalg.norm(self._target - self._eye))
+        return float(np.linalg.norm(self.target - self.eye))
 
     @property
     def focal_px(self) -> float:
         """Focal length in pixels, ``height / (2 * tan_half)`` (same horizontally)."""
-        return self._height / (2.0 * self.tan_half)
+        return self.height / (2.0 * self.tan_half)
 
     # ------------------------------------------------------------------ rays and projection
     def _offsets(self, samples: Any) -> tuple[Any, Any]:
@@ -796,7 +749,7 @@ class Camera:
         if samples is None:
             return 0.5, 0.5
         s = np.asarray(samples, dtype=np.float64)
-        h, w = self._height, self._width
+        h, w = self.height, self.width
         if s.shape == (2,):
             u, v = s[0], s[1]
         elif s.shape == (h, w, 2):
@@ -832,20 +785,20 @@ class Camera:
         dtype = np.dtype(dtype)
         if dtype not in (np.float32, np.float64):
             raise InputError(f"dtype must be float32 or float64, got {dtype}")
-        h, w = self._height, self._width
+        h, w = self.height, self.width
         u, v = self._offsets(samples)
         u = np.broadcast_to(u, (h, w))
         v = np.broadcast_to(v, (h, w))
         tan_half = self.tan_half
         cols = np.arange(w, dtype=np.float64)
         out = np.empty((h * w, 6), dtype=dtype)
-        out[:, :3] = self._eye
+        out[:, :3] = self.eye
         for r0 in range(0, h, RAY_BLOCK_ROWS):
             r1 = min(h, r0 + RAY_BLOCK_ROWS)
             rows = np.arange(r0, r1, dtype=np.float64)[:, None]
             sx = (2.0 * (cols + u[r0:r1]) / w - 1.0) * tan_half * self.aspect
             sy = (1.0 - 2.0 * (rows + v[r0:r1]) / h) * tan_half
-            d = (self._forward + sx[..., None] * self._right + sy[..., None] * self._true_up)
+            d = (self.forward + sx[..., None] * self.right + sy[..., None] * self.true_up)
             d /= np.linalg.norm(d, axis=-1, keepdims=True)
             out[r0 * w:r1 * w, 3:] = d.reshape(-1, 3)
         return out
@@ -869,14 +822,14 @@ class Camera:
         pts = np.asarray(points)
         if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "iuf":
             raise InputError(f"points must be an (n, 3) numeric array, got shape {pts.shape}")
-        rel = pts.astype(np.float64) - self._eye
-        depth = rel @ self._forward
-        x = rel @ self._right
-        y = rel @ self._true_up
+        rel = pts.astype(np.float64) - self.eye
+        depth = rel @ self.forward
+        x = rel @ self.right
+        y = rel @ self.true_up
         focal = self.focal_px
         with np.errstate(divide="ignore", invalid="ignore"):
-            col = self._width / 2.0 + focal * x / depth
-            row = self._height / 2.0 - focal * y / depth
+            col = self.width / 2.0 + focal * x / depth
+            row = self.height / 2.0 - focal * y / depth
         pixels = np.stack([col, row], axis=1)
         pixels[~(depth > 0)] = np.nan
         return pixels, depth
@@ -886,12 +839,12 @@ class Camera:
         """JSON-ready mapping with keys eye, target, up (lists of 3 floats), fov_deg, width,
         height."""
         return {
-            "eye": [float(x) for x in self._eye],
-            "target": [float(x) for x in self._target],
-            "up": [float(x) for x in self._up],
-            "fov_deg": self._fov_deg,
-            "width": self._width,
-            "height": self._height,
+            "eye": [float(x) for x in self.eye],
+            "target": [float(x) for x in self.target],
+            "up": [float(x) for x in self.up],
+            "fov_deg": self.fov_deg,
+            "width": self.width,
+            "height": self.height,
         }
 
     def to_json(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -908,16 +861,16 @@ class Camera:
     def intrinsic_matrix(self) -> np.ndarray:
         """Open3D-convention K, shape (3, 3), float64 (pixel centres at integer coordinates)."""
         f = self.focal_px
-        return np.array([[f, 0.0, self._width / 2.0 - 0.5],
-                         [0.0, f, self._height / 2.0 - 0.5],
+        return np.array([[f, 0.0, self.width / 2.0 - 0.5],
+                         [0.0, f, self.height / 2.0 - 0.5],
                          [0.0, 0.0, 1.0]])
 
     def extrinsic_matrix(self) -> np.ndarray:
         """World->camera 4x4 (float64) with the camera looking down +Z, +X right, +Y down."""
-        rot = np.stack([self._right, -self._true_up, self._forward])
+        rot = np.stack([self.right, -self.true_up, self.forward])
         ext = np.eye(4)
         ext[:3, :3] = rot
-        ext[:3, 3] = -rot @ self._eye
+        ext[:3, 3] = -rot @ self.eye
         return ext
 
     def to_open3d(self) -> Any:
@@ -930,53 +883,21 @@ class Camera:
         params = o3d.camera.PinholeCameraParameters()
         k = self.intrinsic_matrix()
         params.intrinsic = o3d.camera.PinholeCameraIntrinsic(
-            self._width, self._height, k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+            self.width, self.height, k[0, 0], k[1, 1], k[0, 2], k[1, 2]
         )
         params.extrinsic = self.extrinsic_matrix()
         return params
 
     # ------------------------------------------------------------------ copies, equality
-    def replace(self, **changes: Any) -> Camera:
-        """Copy with some of eye, target, up, fov_deg, width, height replaced."""
-        unknown = set(changes) - set(_FIELDS)
-        if unknown:
-            raise TypeError(f"Camera.replace() got unexpected field(s) {sorted(unknown)}")
-        fields = {name: getattr(self, name) for name in _FIELDS}
-        fields.update(changes)
-        return Camera(**fields)
-
     def with_size(self, width: int, height: int) -> Camera:
         """Copy with another image size (the vertical field of view is kept)."""
         return self.replace(width=width, height=height)
 
-    def _key(self) -> tuple:
-        return (tuple(self._eye.tolist()), tuple(self._target.tolist()),
-                tuple(self._up.tolist()), self._fov_deg, self._width, self._height)
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Camera):
-            return NotImplemented
-        return self._key() == other._key()
-
-    def __hash__(self) -> int:
-        return hash(self._key())
-
     def isclose(self, other: Camera, atol: float = 1e-9) -> bool:
         """True if all fields agree within ``atol`` (sizes exactly)."""
         return (
-            self._width == other._width and self._height == other._height
-            and abs(self._fov_deg - other._fov_deg) <= atol
+            self.width == other.width and self.height == other.height
+            and abs(self.fov_deg - other.fov_deg) <= atol
             and all(np.allclose(a, b, rtol=0.0, atol=atol) for a, b in (
-                (self._eye, other._eye), (self._target, other._target), (self._up, other._up)))
+                (self.eye, other.eye), (self.target, other.target), (self.up, other.up)))
         )
-
-    def __repr__(self) -> str:
-        def vec(a: np.ndarray) -> str:
-            return "(" + ", ".join(f"{x:.6g}" for x in a) + ")"
-
-        return (f"Camera(eye={vec(self._eye)}, target={vec(self._target)}, up={vec(self._up)}, "
-                f"fov_deg={self._fov_deg:.6g}, width={self._width}, height={self._height})")
-
-    def __reduce__(self):
-        return (Camera, (self._eye.copy(), self._target.copy(), self._up.copy(),
-                         self._fov_deg, self._width, self._height))

@@ -49,6 +49,7 @@ from .estimation import (  # noqa: F401 - re-exported: the estimation used to li
     knn,
     orient_normals,
 )
+from .settings import check_int
 
 # Largest extent of a cloud: surfels are stored in float32 relative to the cloud's centre, and
 # squared distances (normal and radius estimation) must stay finite in float64.
@@ -495,8 +496,7 @@ class PointCloud:
         if len(f) == 0:
             raise InputError("faces: the mesh has no faces")
         if sample is not None:
-            if isinstance(sample, bool) or not isinstance(sample, (int, np.integer)) or sample < 1:
-                raise InputError(f"sample: expected a positive integer, got {sample!r}")
+            check_int(sample, "sample")
             kw.pop("colors", None)  # vertex colours do not apply to sampled points
             a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
             cross = np.cross(b - a, c - a)

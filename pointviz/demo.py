@@ -23,8 +23,8 @@ def main(argv=None) -> int:
                         help="skip the comparison report (surfels vs reconstructed meshes)")
     args = parser.parse_args(argv)
 
-    from .commands.common import ProgressBar
     from .images import atomic_write_bytes
+    from .progress import ProgressBar
     from .rendering import render
     from .shapes import demo_scene
 

@@ -32,7 +32,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import CancelledError, InputError, PointvizError, require
+from .geometry import Geometry
 from .interrupt import stage
+from .settings import check_int
 
 #: Worker processes of the default LocalCluster (the machine this was written on has 2 cores).
 DEFAULT_WORKERS = 2
@@ -178,7 +180,7 @@ def scene_spec(scene_or_cloud) -> SceneSpec:
     objects = []
     for i, obj in enumerate(scene.objects):
         g = obj.geometry
-        if isinstance(g, SurfelScene) or hasattr(g, "points"):
+        if isinstance(g, SurfelScene) or not isinstance(g, Geometry):  # surfels or a cloud
             ss = scene.surfel_scene(i)
             cloud = ss.cloud
             _ = cloud.normals, cloud.radii  # estimate once, on the client
@@ -217,7 +219,7 @@ def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -
         The PNG file's bytes and ``{"pid", "built", "seconds"}``.
     """
     from .camera import Camera
-    from .path import frame_png
+    from .frames import frame_png
 
     start = time.perf_counter()
     scene, built = spec.scene()
@@ -228,9 +230,11 @@ def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -
 def _connect(scheduler, workers: int):
     """A Client (and the cluster to close, if we started one) for ``scheduler``."""
     distributed = require("distributed", "paths")
-    if scheduler is None or scheduler == "local":
-        if not (isinstance(workers, (int, np.integer)) and workers >= 1):
-            raise InputError(f"workers: expected a positive integer, got {workers!r}")
+    if scheduler is None:
+        raise InputError("scheduler: None renders in this process (render_path); a Dask render "
+                         "needs 'local', a tcp://HOST:PORT address or a dask.distributed.Client")
+    if isinstance(scheduler, str) and scheduler == "local":
+        check_int(workers, "workers")
         cluster = distributed.LocalCluster(
             n_workers=int(workers), threads_per_worker=1, processes=True,
             dashboard_address=":0", silence_logs=40)  # logging.ERROR
@@ -256,7 +260,7 @@ def _connect(scheduler, workers: int):
 
 
 def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: dict,
-                  on_frame: Callable[[int, bytes, dict], object], *, scheduler=None,
+                  on_frame: Callable[[int, bytes, dict], object], *, scheduler,
                   workers: int = DEFAULT_WORKERS, retries: int = DEFAULT_RETRIES,
                   cancel: Callable[[], bool] | None = None) -> dict:
     """Render frames on a Dask cluster, calling ``on_frame`` on this thread as each arrives.
@@ -270,8 +274,10 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
         For :func:`pointviz.render` (``threads`` defaults to the cores per local worker).
     on_frame : callable(index, png_bytes, info)
         Returning False cancels the remaining frames.
-    scheduler : None, "local", "tcp://HOST:PORT" or dask.distributed.Client
-        None/"local": a LocalCluster of ``workers`` processes, closed afterwards.
+    scheduler : "local", "tcp://HOST:PORT" or dask.distributed.Client
+        "local": a LocalCluster of ``workers`` processes, closed afterwards. (There is no
+        default: ``scheduler=None`` means "in this process" wherever it is accepted, see
+        :func:`pointviz.render_path`.)
     retries : int
         Re-runs of a frame after an error (lost workers are rescheduled by Dask as well).
     cancel : callable() -> bool, optional
@@ -285,7 +291,7 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
     """
     distributed = require("distributed", "paths")
     render_kwargs = dict(render_kwargs)
-    if render_kwargs.get("threads") is None and scheduler in (None, "local"):
+    if render_kwargs.get("threads") is None and scheduler == "local":
         render_kwargs["threads"] = max(1, (os.cpu_count() or 1) // max(1, int(workers)))
     start = time.perf_counter()
     client, cluster, close_client = _connect(scheduler, workers)

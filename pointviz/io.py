@@ -23,8 +23,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
-
 from .cloud import PointCloud, _unit_vector
 from .errors import FileFormatError, InputError
 from .readers.conf import RANGE_SCAN_VIEW_DISTANCE, parse_conf, quaternion_matrix
@@ -37,6 +35,7 @@ from .readers.registry import (
     VTK_EXTENSIONS,
     read_file,
 )
+from .settings import check_int
 
 __all__ = [
     "CONF_EXTENSIONS", "LIDAR_EXTENSIONS", "MESH_EXTENSIONS", "POINT_EXTENSIONS",
@@ -87,10 +86,8 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     unknown = set(kw) - {"rng", "up", "name"}
     if unknown:
         raise InputError(f"load: unknown keyword argument(s) {', '.join(sorted(unknown))}")
-    if sample is not None and (
-        isinstance(sample, bool) or not isinstance(sample, (int, np.integer)) or sample < 1
-    ):
-        raise InputError(f"sample: expected a positive integer, got {sample!r}")
+    if sample is not None:
+        check_int(sample, "sample")
     path = Path(os.fspath(path))
     cloud = read_file(path, sample=sample, rng=kw.get("rng"))
     if "up" in kw:

@@ -10,7 +10,9 @@ import numpy as np
 
 from . import _core, interrupt
 from .errors import CancelledError, InputError
+from .geometry import Geometry
 from .interrupt import stage
+from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_int, check_lod  # noqa: F401 (re-exported)
 
 #: Nice increment of the tracer's threads in ``render(background=True)``: a GUI thread at normal
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
@@ -91,8 +93,7 @@ def as_scene(scene_or_cloud, **scene_kw):
 
     if isinstance(scene_or_cloud, Scene):
         return scene_or_cloud
-    if hasattr(scene_or_cloud, "points") or hasattr(scene_or_cloud, "cast_rays") or isinstance(
-            scene_or_cloud, (list, tuple)):
+    if isinstance(scene_or_cloud, (Geometry, list, tuple)) or hasattr(scene_or_cloud, "points"):
         return Scene(scene_or_cloud, **scene_kw)
     raise InputError(
         f"scene_or_cloud: expected a PointCloud, SurfelScene or Scene, got {type(scene_or_cloud).__name__}")
@@ -111,31 +112,14 @@ def camera_model(camera, origin) -> _core.CameraModel:
     return cm
 
 
-def _check_int(value, name, lo, hi):
-    if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and lo <= value <= hi):
-        raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {value!r}")
-    return int(value)
-
-
-def check_render_options(*, spp: int = 4, reflections: int = 1, seed: int = 0,
-                         threads: int | None = None, lod_pixels: float = 1.0, **_ignored):
-    """The numeric options of :func:`render`, checked (InputError naming the bad one) and
-    normalised: ``(spp, reflections, seed, threads, lod_pixels)``. Callers with expensive work
-    before the render (the CLI: trees) check first."""
-    spp = _check_int(spp, "spp", 1, 4096)
-    reflections = _check_int(reflections, "reflections", 0, 16)
-    seed = _check_int(seed, "seed", 0, 2**63 - 1)
-    if threads is not None:
-        threads = _check_int(threads, "threads", 1, 1024)
-    if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
-        raise InputError(f"lod_pixels: expected a number >= 0, got {lod_pixels!r}")
-    return spp, reflections, seed, threads, float(lod_pixels)
-
-
-def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1, spp: int = 4,
-           lod_pixels: float = 1.0, seed: int = 0, threads: int | None = None, progress=None,
-           cancel=None, ground=None, look=None, denoise=False,
-           background: bool = False) -> Frame:
+def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
+           reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
+           lod_pixels: float | str = DEFAULTS.lod_pixels,
+           max_error: float | None = DEFAULTS.max_error, seed: int = DEFAULTS.seed,
+           threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
+           ground=DEFAULTS.ground, look=DEFAULTS.look, denoise=DEFAULTS.denoise,
+           background: bool = False, sample_offset: int = 0,
+           sequence_spp: int | None = None) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -149,8 +133,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         Mirror/glossy bounces (0..16).
     spp : int
         Samples per pixel, stratified (R2 sequence with a per-pixel shift); 1 = pixel centres.
-    lod_pixels : float
-        Level-of-detail threshold in pixels; 0 traces at full detail.
+    lod_pixels : float or "auto"
+        Level-of-detail threshold in pixels; 0 traces at full detail. "auto": every ray
+        (primary, shadow, reflection) stops at the coarsest node whose predicted contribution to
+        the image error fits in ``max_error`` (the model: benchmarks/README.md, "Issue 18").
+    max_error : float, optional
+        With ``lod_pixels="auto"`` only: the frame's mean FLIP against full detail the level of
+        detail may cost, in [0, 1]; default DEFAULT_MAX_ERROR (0.005). 0 is full detail.
     seed : int
         The frame is a deterministic function of the seed, whatever ``threads`` is.
     threads : int, optional
@@ -173,6 +162,11 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         colour stays in ``frame.noisy_color``.
     background : bool
         Trace at a lower CPU priority (BACKGROUND_NICE; Linux), so that a GUI stays responsive.
+    sample_offset, sequence_spp : int
+        Progressive rendering: trace samples ``sample_offset .. sample_offset + spp - 1`` of a
+        sequence of ``sequence_spp`` samples per pixel (default ``spp``). The mean of the frames
+        with offsets 0, spp, 2 spp, ... (same seed) is the frame rendered with all those samples
+        at once, up to float rounding.
 
     Returns
     -------
@@ -184,7 +178,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
         raise InputError("camera: expected a pointviz.Camera")
     from .denoise import check_available, denoise_quality
 
-    quality = denoise_quality(denoise)
+    opts = RenderSettings(shadows=shadows, reflections=reflections, spp=spp,
+                          lod_pixels=lod_pixels, max_error=max_error, seed=seed, threads=threads,
+                          ground=ground, look=look, denoise=denoise)
+    quality = denoise_quality(opts.denoise)
     if quality is not None:
         check_available()  # before the expensive part
     kw = {} if ground is None else {"ground": ground}
@@ -196,16 +193,23 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
             scene = scene.with_look(look)
         if ground is not None:
             scene = scene.with_ground(ground)
-    spp, reflections, seed, threads, lod_pixels = check_render_options(
-        spp=spp, reflections=reflections, seed=seed, threads=threads, lod_pixels=lod_pixels)
+    spp, reflections, seed, threads, lod_pixels = (
+        opts.spp, opts.reflections, opts.seed, opts.threads, opts.lod_pixels)
+    shadows = opts.shadows
+    lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
-    rs, origin = scene.to_core(camera, lod_pixels)
+    rs, origin = scene.to_core(camera, lod_pixels, max_error)
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
     settings.shadows = bool(shadows)
-    settings.lod_pixels = float(lod_pixels)
+    # the core only asks whether rays carry a footprint at all
+    settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
+    settings.footprint_offsets = lod_pixels != "auto"
     settings.seed = seed
+    settings.sample_offset = check_int(sample_offset, "sample_offset", 0, 2**31 - 1)
+    settings.sequence_spp = check_int(spp if sequence_spp is None else sequence_spp,
+                                       "sequence_spp", 1, 2**31 - 1)
     settings.threads = threads or 0
 
     is_cancelled = _cancel_check(cancel)
@@ -232,7 +236,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = True, reflections: int = 1
     stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
-                         "lod_pixels": float(lod_pixels), "seed": seed, "threads": threads,
+                         "lod_pixels": lod_pixels, "max_error": max_error, "seed": seed, "threads": threads,
                          "look": scene.look.name, "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])

@@ -12,14 +12,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import _core
-from .arrays import bounds, dot3
+from . import extent as _extent_mod
 from .errors import InputError
+from .extent import (  # noqa: F401 - public here too
+    GROUND_OUTLIER_FRACTION,
+    GROUND_ROBUST_MIN_POINTS,
+    cloud_extent,
+)
+from .geometry import Geometry
 
 _Y_UP = (0.0, 1.0, 0.0)
-#: Fraction of a large cloud's lowest points that may sink below the "auto" ground.
-GROUND_OUTLIER_FRACTION = 0.0005
-#: Clouds smaller than this rest on their lowest point.
-GROUND_ROBUST_MIN_POINTS = 2000
 
 
 def _rgb(value, name: str) -> tuple[float, float, float]:
@@ -285,43 +287,14 @@ def resolve_look(look, geometry, up) -> Look:
 
         cloud = getattr(geometry, "cloud", geometry)
         pts = getattr(cloud, "points", None)
-        kind = shape_kind(pts, up) if pts is not None else "object"
+        if hasattr(geometry, "shape_kind") and hasattr(geometry, "tree"):  # a SurfelScene
+            kind = geometry.shape_kind(up)  # kept with the scene: every frame asks again
+        else:
+            kind = shape_kind(pts, up) if pts is not None else "object"
         return LOOKS["outdoor" if kind == "terrain" else "studio"]
     if look not in LOOKS:
         raise InputError(f"look: expected one of auto, {', '.join(LOOKS)}, got {look!r}")
     return LOOKS[look]
-
-
-def cloud_extent(points, radii, up) -> tuple[np.ndarray, np.ndarray, float]:
-    """Bounds of a cloud's disks and the level of a ground plane under it.
-
-    One O(n) pass; callers cache the result (see :meth:`Scene._extent`,
-    :meth:`pointviz.SurfelScene.extent`).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    radii : (n,) float or None
-        Disk radii: the bounds grow by the largest, the ground sinks by the 99th percentile.
-    up : (3,) float, unit
-
-    Returns
-    -------
-    lo, hi : (3,) float64
-        Axis-aligned bounds including the largest radius.
-    level : float
-        Height along ``up`` of the ground: the lowest point, ignoring the lowest
-        :data:`GROUND_OUTLIER_FRACTION` of a cloud with at least
-        :data:`GROUND_ROBUST_MIN_POINTS` points.
-    """
-    r = float(np.max(radii)) if radii is not None else 0.0
-    lo, hi = bounds(points)
-    lo, hi = lo - r, hi + r
-    h = dot3(points, up)
-    r99 = float(np.quantile(radii, 0.99)) if radii is not None else 0.0
-    low = (np.quantile(h, GROUND_OUTLIER_FRACTION) if len(h) >= GROUND_ROBUST_MIN_POINTS
-           else h.min())
-    return lo, hi, float(low) - r99
 
 
 @dataclass
@@ -393,7 +366,7 @@ class Scene:
         for c, m in zip(clouds, materials):
             if not isinstance(m, Material):
                 raise InputError(f"materials: expected Material, got {type(m).__name__}")
-            if not (isinstance(c, SurfelScene) or hasattr(c, "points") or hasattr(c, "intersect")):
+            if not (isinstance(c, Geometry) or hasattr(c, "points")):
                 raise InputError(f"clouds: cannot render a {type(c).__name__}")
             self.objects.append(SceneObject(c, m))
         self.lights = None if lights is None else list(lights)
@@ -431,14 +404,19 @@ class Scene:
             self.sky = {"zenith": c, "horizon": c, "below": c}
 
     # -- geometry -----------------------------------------------------------------------------
-    def surfel_scene(self, i: int):
-        """The SurfelScene of object i, built on first use (a cloud's tree is built once)."""
+    def geometry(self, i: int) -> Geometry:
+        """The :class:`~pointviz.geometry.Geometry` of object i: a cloud becomes a SurfelScene
+        on first use (its tree is built once)."""
         from .surfels import SurfelScene
 
         obj = self.objects[i]
-        if not isinstance(obj.geometry, SurfelScene) and hasattr(obj.geometry, "points"):
+        if not isinstance(obj.geometry, Geometry):
             obj.geometry = SurfelScene(obj.geometry, **self._scene_options)
         return obj.geometry
+
+    def surfel_scene(self, i: int):
+        """The SurfelScene of object i, built on first use (a mesh object is returned as is)."""
+        return self.geometry(i)
 
     def _extent(self, obj) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds (with disk radii) and ground level of one object, computed once per geometry:
@@ -451,15 +429,9 @@ class Scene:
         hit = cache.get(id(cloud))
         if hit is not None and hit[0] is cloud:  # also when the cloud has become a SurfelScene
             return hit[1]
-        if hasattr(g, "extent") and hasattr(g, "tree"):  # a SurfelScene
+        if isinstance(g, Geometry):  # a SurfelScene keeps its own, a mesh's is cheap
             return g.extent(self.up)
-        if getattr(cloud, "points", None) is None:
-            lo, hi = (np.asarray(v, dtype=np.float64) for v in g.bounds())
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                for z in (lo[2], hi[2])])
-            ext = (lo, hi, float(np.min(corners @ self.up)))
-        else:
-            ext = cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
+        ext = _extent_mod.cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
         cache[id(cloud)] = (cloud, ext)
         return ext
 
@@ -486,7 +458,7 @@ class Scene:
         level = min(self._extent(obj)[2] for obj in self.objects)
         return center + (level - center @ self.up) * self.up
 
-    def to_core(self, camera, lod_pixels: float):
+    def to_core(self, camera, lod_pixels: float | str, max_error: float | None = None):
         """The C++ render scene and its local origin (float64): everything is re-centred on it
         so that georeferenced scans keep float32 precision."""
         lo, hi = self.bounds()
@@ -494,14 +466,7 @@ class Scene:
         rs = _core.RenderScene()
         rs.scale = float(max(np.linalg.norm(hi - lo) * 0.5, 1e-12))
         for i, obj in enumerate(self.objects):
-            g = obj.geometry
-            if hasattr(g, "intersect") and hasattr(g, "occluded") and not hasattr(g, "points"):
-                g.set_origin(origin)
-                rs.add_callback(g, obj.material.to_core())
-                continue
-            ss = self.surfel_scene(i)
-            offset = tuple(float(v) for v in (origin - ss.origin))
-            rs.add_surfels(ss.tree, ss.trace_options(lod_pixels), offset, obj.material.to_core())
+            self.geometry(i).add_to(rs, origin, obj.material.to_core(), lod_pixels, max_error)
         if self.ground is not None:
             rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
         lights = self.lights if self.lights is not None else self.look.lights(camera, self.up)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .cloud import PointCloud
-from .errors import InputError
+from .settings import check_int
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -19,9 +19,7 @@ LATTICE_RADIUS_FACTOR = 0.9
 
 
 def _count(n, name="n") -> int:
-    if not (isinstance(n, (int, np.integer)) and n >= 1):
-        raise InputError(f"{name}: expected a positive integer, got {n!r}")
-    return int(n)
+    return check_int(n, name)
 
 
 def _colored(points, normals, radii, color, **kw) -> PointCloud:

@@ -20,8 +20,10 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
+from . import extent as _extent_mod
 from .arrays import bounds
 from .errors import InputError
+from .settings import INTERPOLATIONS, check_int, check_lod
 
 #: The paper's traversal variants, as knob settings.
 VARIANTS = {
@@ -32,7 +34,6 @@ VARIANTS = {
     "full": {"lod": True, "cull": True, "box_depth": "auto"},
 }
 
-INTERPOLATIONS = ("none", "paper", "smooth")
 
 #: Default interpolation: the most accurate in tests/test_surfels.py and benchmarks/bench_interp.py.
 DEFAULT_INTERPOLATION = "smooth"
@@ -40,6 +41,10 @@ DEFAULT_INTERPOLATION = "smooth"
 #: Most surfels per leaf: 8 surfels (256 bytes, four cache lines) per leaf keeps the tree at about
 #: a third of a node per surfel (about 11 bytes per surfel) while a leaf is still cheap to test.
 DEFAULT_LEAF_SIZE = 8
+#: Mean FLIP the paper's size rule at 1 px costs at most in the measured frames (0.0026: an
+#: 8M-surfel analytic scene at the framing distance; under 0.0012 on the 1M calibration
+#: frames). The automatic level of detail adds the size rule at min(1, max_error / this) px.
+SIZE_RULE_ERROR = 0.003
 
 #: With box_depth="auto", boxes are kept for the top levels while their total stays within this
 #: many bytes per surfel: boxes are tighter than spheres but cost 24 bytes per node, and the top
@@ -47,6 +52,27 @@ DEFAULT_LEAF_SIZE = 8
 AUTO_BOX_BYTES_PER_SURFEL = 1.5
 
 _ALL_LEVELS = 255
+
+#: Instruction sets of the traversal kernels ("auto": the best this CPU runs, :func:`best_isa`).
+ISAS = ("auto", "base", "sse42", "avx2", "avx512")
+
+
+def available_isas() -> tuple[str, ...]:
+    """The instruction sets whose kernels this build has and this CPU runs ("base" always).
+
+    Every one gives the same hits, bit for bit; they differ only in speed.
+
+    Returns
+    -------
+    tuple of str
+        Names from :data:`ISAS`, "base" first.
+    """
+    return tuple(name for name in ISAS[1:] if _core.isa_available(getattr(_core.Isa, name)))
+
+
+def best_isa() -> str:
+    """The instruction set that ``isa="auto"`` runs on this CPU (a name from :data:`ISAS`)."""
+    return _core.best_isa().name
 
 #: Most surfels in one tree (27 bits of index in the 32-byte node).
 MAX_SURFELS = 2**27 - 1
@@ -123,8 +149,16 @@ class SurfelScene:
     lod_criterion : {"size", "deviation"}
         When LoD stops descending: the paper's projected sphere size, or the projected deviation
         of the node from its mean plane (flat regions stop earlier).
+    isa : {"auto", "base", "sse42", "avx2", "avx512"}
+        Instruction set of the traversal kernels; "auto" (default) runs the best this CPU has
+        (:func:`best_isa`). Results never depend on it.
     threads : int, optional
         Worker threads for the build and queries; default all cores. Results never depend on it.
+    keep_cloud : bool
+        Keep a reference to ``cloud`` (default). ``False`` drops it once the tree is built (the
+        tree holds its own 32-byte copy of each surfel), so that the caller's arrays can be
+        freed: the largest clouds then need no second copy. Such a scene cannot be pickled, and
+        :meth:`extent` reads the tree's surfels instead.
     origin : (3,) float, optional
         Local frame origin; default the cloud's bounding-box centre (keeps float32 precise for
         georeferenced clouds).
@@ -133,8 +167,8 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
-                 lod_criterion: str = "size", slabs: bool = True,
-                 threads: int | None = None, origin=None):
+                 lod_criterion: str = "size", slabs: bool = True, isa: str = "auto",
+                 threads: int | None = None, origin=None, keep_cloud: bool = True):
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {sorted(VARIANTS)}, got {variant!r}")
         interpolation = DEFAULT_INTERPOLATION if interpolation is None else interpolation
@@ -149,13 +183,21 @@ class SurfelScene:
             raise InputError(f"lod_criterion: expected 'size' or 'deviation', got {lod_criterion!r}")
         if not (isinstance(leaf_size, (int, np.integer)) and 1 <= leaf_size <= 31):
             raise InputError(f"leaf_size: must be an integer in 1..31, got {leaf_size!r}")
+        if not keep_cloud and VARIANTS[variant].get("tree") == "kdtree":
+            raise InputError("keep_cloud=False: the kdtree variant keeps no copy of the surfels "
+                             "to answer extent() from; use another variant or keep the cloud")
+        if isa not in ISAS:
+            raise InputError(f"isa: expected one of {ISAS}, got {isa!r}")
+        if isa != "auto" and isa not in available_isas():
+            raise InputError(f"isa: {isa!r} kernels do not run here (available: "
+                             f"{', '.join(available_isas())})")
         self.threads = _check_threads(threads)
         self.cloud = cloud
         # Everything needed to build the same tree again (pickling, distributed workers).
         self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
                                  box_depth=box_depth, lod_pixels=lod_pixels, window=window,
                                  leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
-                                 threads=threads, origin=origin)
+                                 isa=isa, threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -194,6 +236,10 @@ class SurfelScene:
             self._tree = _core.SurfelTree(*arrays, leaf_size=int(leaf_size),
                                           box_depth=int(min(bd, _ALL_LEVELS)),
                                           threads=self.threads or 0)
+        if not keep_cloud:
+            # Drop every reference to the caller's arrays and to this call's converted copies.
+            self.cloud = None
+            del arrays, points, colors
         self._options = _core.TraceOptions()
         self._options.lod = knobs["lod"]
         self._options.cull = knobs["cull"]
@@ -203,11 +249,14 @@ class SurfelScene:
         self._options.interpolation = getattr(_core.Interpolation, interpolation)
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
+        self._options.isa = getattr(_core.Isa, isa)
         self.last_stats: dict = {}
 
     def __reduce__(self):
         """Pickle as the cloud and the settings: the tree is rebuilt (deterministically) on load,
         so a scene sent to another process traces exactly the same hits."""
+        if self.cloud is None:
+            raise InputError("SurfelScene(keep_cloud=False) cannot be pickled: its cloud is gone")
         kwargs = dict(self._init_kwargs)
         kwargs["origin"] = self.origin  # the resolved origin, so the local frame is identical
         return (_rebuild, (self.cloud, kwargs))
@@ -272,22 +321,66 @@ class SurfelScene:
 
     def extent(self, up) -> tuple[np.ndarray, np.ndarray, float]:
         """Bounds of the disks and the ground level along ``up`` (see
-        :func:`pointviz.scene.cloud_extent`), computed on first use per ``up`` and reused, so
+        :func:`pointviz.extent.cloud_extent`), computed on first use per ``up`` and reused, so
         that a frame costs nothing that grows with the cloud."""
-        from .scene import cloud_extent
+        return self._per_up("_extents", up, self._compute_extent)
 
+    def _compute_extent(self, key: tuple):
+        if self.cloud is not None:
+            return _extent_mod.cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None),
+                                            key)
+        # keep_cloud=False: the tree's own surfels, in its local frame
+        view = self._tree.surfel_view()
+        lo, hi, level = _extent_mod.cloud_extent(view[:, :3], view[:, 3], key)
+        o = self.origin
+        return lo + o, hi + o, level + float(np.dot(o, key))
+
+    def shape_kind(self, up) -> str:
+        """``"terrain"`` or ``"object"`` (see :func:`pointviz.camera.shape_kind`, which picks the
+        "auto" look), decided on first use per ``up`` and reused like :meth:`extent`."""
+        from . import camera
+
+        def compute(key):
+            if self.cloud is not None:
+                return camera.shape_kind(self.cloud.points, key)
+            # keep_cloud=False: the tree's own surfel centres, back in world coordinates
+            return camera.shape_kind(self._tree.surfel_view()[:, :3] + self.origin, key)
+
+        return self._per_up("_shape_kinds", up, compute)
+
+    def _per_up(self, name: str, up, compute):
+        """``compute(up)`` cached in the dict attribute ``name``, keyed by the ``up`` tuple."""
         key = tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(3))
-        cache = self.__dict__.setdefault("_extents", {})
+        cache = self.__dict__.setdefault(name, {})
         if key not in cache:
-            cache[key] = cloud_extent(self.cloud.points, getattr(self.cloud, "radii", None), key)
+            cache[key] = compute(key)
         return cache[key]
 
-    def trace_options(self, lod_pixels: float | None = None):
-        """A copy of the traversal options, optionally with another LoD threshold."""
+    def add_to(self, render_scene, origin, material, lod_pixels: float | str,
+               max_error: float | None = None) -> None:
+        """Add this tree to a core RenderScene whose frame is centred on ``origin`` (see
+        :class:`pointviz.geometry.Geometry`)."""
+        offset = tuple(float(v) for v in (np.asarray(origin, dtype=np.float64) - self.origin))
+        render_scene.add_surfels(self._tree, self.trace_options(lod_pixels, max_error), offset,
+                                 material)
+
+    def trace_options(self, lod_pixels: float | str | None = None, max_error: float | None = None):
+        """A copy of the traversal options, optionally with another LoD threshold, or with the
+        error budget (``lod_pixels="auto"``, ``max_error``: mean FLIP, see
+        :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs"):
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa"):
             setattr(o, k, getattr(self._options, k))
+        if isinstance(lod_pixels, str):
+            _, max_error = check_lod(lod_pixels, max_error)
+            o.lod = o.lod and max_error > 0
+            o.lod_criterion = _core.LodCriterion.budget
+            o.max_error = max_error
+            # The size rule joins the budget in proportion to it: at 1 px it costs up to
+            # SIZE_RULE_ERROR, so it runs at full strength once the budget covers that.
+            o.lod_pixels = min(1.0, max_error / SIZE_RULE_ERROR)
+            return o
         if lod_pixels is not None:
             if not (np.isfinite(lod_pixels) and lod_pixels >= 0):
                 raise InputError(f"lod_pixels: must be a non-negative number, got {lod_pixels!r}")
@@ -302,7 +395,8 @@ class SurfelScene:
 
     # -- queries ----------------------------------------------------------------------------
     def cast_rays(self, rays, *, pixel_angle: float | None = None, camera=None,
-                  lod_pixels: float | None = None, stats: bool = True) -> dict:
+                  lod_pixels: float | str | None = None, stats: bool = True,
+                  max_error: float | None = None) -> dict:
         """Closest hits with interpolated attributes.
 
         Parameters
@@ -314,8 +408,12 @@ class SurfelScene:
             camera) rays are traced at full detail.
         camera : Camera, optional
             Takes ``pixel_angle`` from the camera.
-        lod_pixels : float, optional
-            Overrides the scene's LoD threshold for this call; 0 disables LoD.
+        lod_pixels : float or "auto", optional
+            Overrides the scene's LoD threshold for this call; 0 disables LoD; "auto" stops
+            by the error budget ``max_error`` (see :func:`pointviz.render`).
+        stats : bool
+        max_error : float, optional
+            With ``lod_pixels="auto"``: the budget (mean FLIP).
 
         Returns
         -------
@@ -328,7 +426,7 @@ class SurfelScene:
         """
         arr = as_rays(rays)
         pa = _pixel_angle(pixel_angle, camera)
-        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels), pixel_angle=pa,
+        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels, max_error), pixel_angle=pa,
                              threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return out
@@ -384,6 +482,4 @@ def _pixel_angle(pixel_angle, camera) -> float:
 def _check_threads(threads):
     if threads is None:
         return None
-    if not (isinstance(threads, (int, np.integer)) and threads >= 1):
-        raise InputError(f"threads: must be a positive integer or None, got {threads!r}")
-    return int(threads)
+    return check_int(threads, "threads", note=" or None")

@@ -98,3 +98,13 @@ def test_lod_budget_quick_fits_a_bound(shared_data, tmp_path):
     assert core.max() > 0.1 and np.corrcoef(sim, core)[0, 1] > 0.95
     assert all(0.0 <= r["flip"] <= 1.0 for r in res["rows"])
     assert {p.name for p in tmp_path.glob("*.png")} == {"lod_budget_calibration.png"}
+
+
+def test_bench_lod_quick_writes_rows_and_popping(shared_data, tmp_path):
+    res = run_script("bench_lod.py", tmp_path, shared_data, "--models", "torus", "--path")
+    variants = {r["variant"] for r in res["rows"]}
+    assert {"full", "1px", "auto 0.005"} <= variants
+    assert {r["factor"] for r in res["rows"]} == {1.0, 2.5, 7.5}
+    assert all(0.0 <= r["flip"] <= 1.0 and r["seconds"] > 0 for r in res["rows"])
+    assert set(res["popping"]["torus"]) == {"full", "1px", "auto"}
+    assert {p.name for p in tmp_path.glob("*.png")} == {"bench_lod.png"}

@@ -181,9 +181,11 @@ def test_bench_core_quick(embree, tmp_path):
     import bench_core
 
     out = tmp_path / "core.json"
-    assert bench_core.main(["--quick", "--threads", "1", "--output", str(out)]) == 0
+    assert bench_core.main(["--quick", "--threads", "1", "--models", "sphere,torus,armadillo,dragon",
+                            "--output", str(out)]) == 0
     result = json.loads(out.read_text())
-    assert [m["name"] for m in result["models"]] == ["armadillo-20k", "dragon-scans-20k"]
+    assert [m["name"] for m in result["models"]] == ["sphere-20k", "torus-20k", "armadillo-20k",
+                                                     "dragon-scans-20k"]
     discs = result["models"][0]["threads"]["1"]["embree_discs"]
     assert discs["primary"]["closest_best"] > 0
     assert discs["primary"]["modes_identical"]
@@ -202,3 +204,20 @@ def test_embree_one_sided_discs(embree, mode):
         np.testing.assert_allclose(out["t_hit"][keep], expected_t[keep], rtol=T_RTOL)
         assert not np.isfinite(out["t_hit"][3])
         assert not scene.occluded(rays[3:4], [100.0], mode=mode)[0]
+
+
+def test_bench_scaling_whole_process(tmp_path):
+    """One fresh process per size: the sphere it samples is traced and its peak RSS recorded."""
+    import bench_scaling
+
+    n = 20_000
+    assert bench_scaling.main(["--whole-process", "--sizes", str(n), "--threads-list", "1",
+                               "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "scaling_whole_process.json").read_text())["rows"]
+    assert [(r["n"], r["threads"]) for r in rows] == [(n, 1)]
+    r = rows[0]
+    # the camera frames the whole unit sphere: about pi/4 of a square image covers its disc
+    assert 0.3 < r["hit_fraction"] < 0.9
+    assert r["peak_rss_bytes"] >= r["interpreter_rss_bytes"] > 0
+    assert r["memory_bytes_per_surfel"] < 64
+    assert (tmp_path / "scaling_whole_process.png").exists()

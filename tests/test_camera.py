@@ -435,3 +435,30 @@ def test_fit_views_an_object_from_three_quarters_and_fills_the_frame(rng):
     assert span.max() == pytest.approx(1 / margin, rel=1e-3)
     centre = (px.min(axis=0) + px.max(axis=0)) / 2
     np.testing.assert_allclose(centre, [80, 60], atol=0.5)
+
+
+# ------------------------------------------------------------- against the renderer's ray model
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rays_match_the_core_camera_model(seed):
+    """Camera.rays and the C++ CameraModel::direction (what the renderer traces) give the same
+    ray through every pixel, at pixel centres and at random in-pixel offsets; the core sees
+    the eye relative to the scene's origin."""
+    from pointviz.rendering import camera_model
+
+    rng = np.random.default_rng(seed)
+    cam = Camera(rng.normal(size=3) * 10, rng.normal(size=3), up=rng.normal(size=3),
+                 fov_deg=rng.uniform(10, 120), width=int(rng.integers(1, 23)),
+                 height=int(rng.integers(1, 17)))
+    origin = rng.normal(size=3) * 5
+    core = camera_model(cam, origin)
+    np.testing.assert_allclose(core.eye, cam.eye - origin, rtol=0, atol=1e-5)
+    offsets = rng.random((cam.height, cam.width, 2))
+    for samples in (None, offsets):
+        rays = cam.rays(samples, dtype=np.float64)
+        uv = np.full((cam.height, cam.width, 2), 0.5) if samples is None else offsets
+        expected = np.array([core.direction(j + uv[i, j, 0], i + uv[i, j, 1])
+                             for i in range(cam.height) for j in range(cam.width)])
+        np.testing.assert_allclose(rays[:, 3:], expected, rtol=0, atol=2e-6)
+        np.testing.assert_allclose(rays[:, :3], np.broadcast_to(cam.eye, rays[:, :3].shape))

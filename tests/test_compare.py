@@ -14,7 +14,7 @@ import pytest
 
 from pointviz import Camera, InputError, render, shapes 
 from pointviz.comparison import analytic, metrics 
-from pointviz.comparison.mesh import MeshGeometry 
+from pointviz.meshes import MeshGeometry 
 from pointviz.comparison.run import Settings, render_geometry 
 from pointviz.comparison.schema import SCHEMA, builtin_errors, validate 
 from pointviz.scene import Scene 
@@ -58,8 +58,7 @@ def test_mesh_backend_agrees_with_surfels_on_exact_sphere():
 @needs_embreex
 def test_mesh_queries_honour_tmin_tmax():
     v, f = analytic.sphere_mesh(1.0, res=64)
-    g = MeshGeometry(v, f)
-    g.set_origin(np.zeros(3))
+    g = MeshGeometry(v, f).local(np.zeros(3))  # the mesh in the frame centred on the origin
     rays = np.zeros((4, 8), np.float32)
     rays[:, 2] = 5.0
     rays[:, 5] = -1.0

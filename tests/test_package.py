@@ -28,3 +28,10 @@ def test_import_is_cheap():
             "'embreex', 'laspy'} & set(sys.modules); print(sorted(heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_one_version_source():
+    """pyproject reads the version from pointviz.__version__: the installed metadata agrees."""
+    from importlib.metadata import version
+
+    assert version("pointviz") == pointviz.__version__

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import pointviz
-from pointviz import scene as scene_mod
+from pointviz import extent as extent_mod
 from pointviz.cloud import PointCloud
 from pointviz.scene import GROUND_OUTLIER_FRACTION, Scene, cloud_extent
 
@@ -47,13 +47,13 @@ def test_render_of_a_surfel_scene_scans_its_points_once(blob, monkeypatch):
     come from the SurfelScene's cache, not from a new pass over the points."""
     ss = pointviz.SurfelScene(blob)
     calls = []
-    real = scene_mod.cloud_extent
+    real = extent_mod.cloud_extent
 
     def counting(*args, **kw):
         calls.append(1)
         return real(*args, **kw)
 
-    monkeypatch.setattr(scene_mod, "cloud_extent", counting)
+    monkeypatch.setattr(extent_mod, "cloud_extent", counting)
     cam = pointviz.Camera.fit(blob, width=16, height=12)
     frames = [pointviz.render(ss, cam, spp=1) for _ in range(3)]
     assert len(calls) == 1
@@ -79,11 +79,43 @@ def test_a_cloud_scene_scans_its_points_once_across_the_tree_build(blob, monkeyp
     """Scene(cloud): bounds taken before the tree exists (Camera.fit) are reused once the cloud
     has become a SurfelScene inside render()."""
     calls = []
-    real = scene_mod.cloud_extent
-    monkeypatch.setattr(scene_mod, "cloud_extent",
+    real = extent_mod.cloud_extent
+    monkeypatch.setattr(extent_mod, "cloud_extent",
                         lambda *a, **kw: calls.append(1) or real(*a, **kw))
     scene = Scene(blob)
     cam = pointviz.Camera.fit(scene, width=16, height=12)
     pointviz.render(scene, cam, spp=1)
     pointviz.render(scene, cam, spp=1)
     assert len(calls) == 1
+
+
+def test_render_of_a_surfel_scene_decides_its_look_once(blob, monkeypatch):
+    """The "auto" look's terrain/object test reads the points: render(surfel_scene) must take it
+    from the SurfelScene's cache at every frame after the first."""
+    from pointviz import camera as camera_mod
+
+    ss = pointviz.SurfelScene(blob)
+    cam = pointviz.Camera.fit(blob, width=16, height=12)
+    calls = []
+    real = camera_mod.shape_kind
+    monkeypatch.setattr(camera_mod, "shape_kind",
+                        lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    frames = [pointviz.render(ss, cam, spp=1) for _ in range(3)]
+    assert len(calls) == 1
+    for f in frames[1:]:
+        np.testing.assert_array_equal(f.color, frames[0].color)
+    # the cached answer is the one a fresh test gives, per up direction
+    for up in ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+        assert ss.shape_kind(up) == real(blob.points, up)
+
+
+def test_a_flat_surfel_scene_gets_the_outdoor_look_from_the_cache(rng):
+    from pointviz import scene as scene_mod
+
+    n = 4000
+    p = np.column_stack([rng.uniform(-50, 50, n), rng.normal(scale=0.1, size=n),
+                         rng.uniform(-50, 50, n)])
+    tile = pointviz.SurfelScene(PointCloud(p, np.tile([0.0, 1.0, 0.0], (n, 1)), radii=1.0))
+    assert tile.shape_kind((0.0, 1.0, 0.0)) == "terrain"
+    assert Scene(tile).look is scene_mod.LOOKS["outdoor"]
+    assert Scene(tile).look is scene_mod.LOOKS["outdoor"]  # second time from the cache

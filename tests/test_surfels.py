@@ -304,6 +304,8 @@ def test_bad_rays_are_named(sphere20k, rays, message):
     ({"leaf_size": 0}, "leaf_size"),
     ({"box_depth": -2}, "box_depth"),
     ({"threads": 0}, "threads"),
+    ({"isa": "neon"}, "isa: expected one of"),
+    ({"variant": "kdtree", "keep_cloud": False}, "keep_cloud=False"),
 ])
 def test_bad_scene_options_are_named(sphere20k, kwargs, message):
     with pytest.raises(InputError, match=message):
@@ -327,3 +329,62 @@ def test_pickle_rebuilds_the_same_tree(sphere20k, rng):
     for key in ("t_hit", "normals", "index"):
         np.testing.assert_array_equal(a[key], b[key])
     assert copy.n_nodes == scene.n_nodes and copy.box_depth == scene.box_depth
+
+
+@pytest.mark.parametrize("variant", ["full", "lod+cull", "lod"])
+def test_every_instruction_set_equals_the_portable_kernels(sphere20k, rng, variant):
+    from pointviz.surfels import available_isas, best_isa
+
+    isas = available_isas()
+    assert isas[0] == "base" and best_isa() in isas
+    # The sphere's sampling, and disks at random orientations whose depth windows overlap
+    # (the gathered set then depends on the order disks arrive in: the lanes must keep it).
+    pts = rng.normal(size=(3000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    jumble = PointCloud(pts, normals=rng.normal(size=(3000, 3)), radii=rng.uniform(0.02, 0.2, 3000))
+    rays = np.vstack([rays_at_sphere(rng, 3000), rays_at_sphere(rng, 1000, dist=1.5, spread=3.0)])
+    t_max = rng.uniform(0.5, 4.0, len(rays)).astype(np.float32)
+    for cloud in (sphere20k, jumble):
+        for leaf_size in (8, 12):
+            kw = dict(variant=variant, leaf_size=leaf_size)
+            ref = SurfelScene(cloud, isa="base", **kw)
+            a = ref.cast_rays(rays, pixel_angle=0.004)
+            a_stats = ref.last_stats
+            a_occ = ref.occluded(rays, t_max, pixel_angle=0.004)
+            for isa in isas[1:] + ("auto",):
+                scene = SurfelScene(cloud, isa=isa, **kw)
+                b = scene.cast_rays(rays, pixel_angle=0.004)
+                for key in ("t_hit", "normals", "colors", "radii", "index", "count", "positions"):
+                    np.testing.assert_array_equal(b[key], a[key], err_msg=f"{isa}: {key}")
+                assert scene.last_stats == a_stats, isa
+                np.testing.assert_array_equal(scene.occluded(rays, t_max, pixel_angle=0.004),
+                                              a_occ)
+
+
+def test_keep_cloud_false_frees_the_arrays_and_answers_alike(rng):
+    import gc
+    import pickle
+    import weakref
+
+    points = rng.normal(size=(5000, 3))
+    points /= np.linalg.norm(points, axis=1, keepdims=True)
+    cloud = PointCloud(points, normals=points.astype(np.float32), radii=np.full(5000, 0.05),
+                       colors=rng.uniform(0, 1, (5000, 3)))
+    rays = rays_at_sphere(rng, 2000)
+    kept = SurfelScene(cloud)
+    gone = SurfelScene(cloud, keep_cloud=False)
+    assert gone.cloud is None
+    a, b = kept.cast_rays(rays), gone.cast_rays(rays)
+    for key in ("t_hit", "normals", "colors", "index"):
+        np.testing.assert_array_equal(a[key], b[key])
+    # extent() from the tree's float32 surfels: the cloud's own to float32 rounding
+    up = np.array([0.0, 0.0, 1.0])
+    for x, y in zip(kept.extent(up), gone.extent(up)):
+        np.testing.assert_allclose(x, y, atol=1e-5)
+    with pytest.raises(InputError, match="cannot be pickled"):
+        pickle.dumps(gone)
+    # nothing of the scene keeps the caller's arrays alive
+    ref = weakref.ref(cloud)
+    del cloud, kept
+    gc.collect()
+    assert ref() is None

@@ -146,6 +146,14 @@ def _python(script: str, cwd) -> subprocess.CompletedProcess:
     return out
 
 
+def _driver_result(out) -> dict:
+    """The RESULT line a driver script printed; fails with the driver's traceback if any."""
+    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
+    res = json.loads(line[len("RESULT"):])
+    assert "error" not in res, res["error"]
+    return res
+
+
 def _load_png(path) -> np.ndarray:
     from PIL import Image
 
@@ -272,9 +280,7 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
         res["worker_ended_on_close"] = v.timings.get("worker_ended_on_close")
         print("RESULT" + json.dumps(res))
         """, tmp_path)
-    line = [x for x in out.stdout.splitlines() if x.startswith("RESULT")][-1]
-    res = json.loads(line[len("RESULT"):])
-    assert "error" not in res, res["error"]
+    res = _driver_result(out)
     print("viewer responsiveness:", res)
     assert res["running_during"], "the render ended before the latency was measured"
     assert res["max_latency_s"] < MAX_GUI_LATENCY_S, res
@@ -334,3 +340,115 @@ def test_keyframes_make_a_path_that_the_cli_reads(tmp_path):
     frames = sorted((tmp_path / "frames").glob("frame_*.png"))
     assert len(frames) == again.n_frames == 9  # 2 s at 4 fps, both ends included
     assert all(_load_png(f).shape == (48, 64, 3) for f in frames)
+
+
+# ------------------------------------------------------------------------------ live viewport
+
+
+@pytest.mark.gui
+@needs_display
+def test_live_orbit_reports_and_its_still_frame_matches_a_direct_render(tmp_path):
+    """``view(live=True, orbit=...)``: the report holds the live measurements, the still frame
+    after the hold is the mean of a deterministic sample sequence, so it equals a direct
+    render() with that many samples, and the screenshot's viewport shows it."""
+    out = _python(f"""
+        {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import pointviz
+        pointviz.view(cloud, live=True, orbit=1.0, width=96, height=72, screenshot="shot.png",
+                      frame="frame.npz", report="report.json")
+        """, tmp_path)
+    assert out.returncode == 0
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["live_fps"] > 0 and 0 < report["live_resolution"] <= 1
+    assert report["still_spp"] >= 1 and report["preview_fps"] > 0
+    assert report["live"]["viewport"] == [96, 72] and not report["live"]["errors"]
+    assert report["timings"]["live_worker_ended_on_close"] is True
+    data = np.load(tmp_path / "frame.npz")
+    assert not bool(data["moving"]) and int(data["spp"]) >= report["still_spp"]
+    camera = Camera.from_dict({k: v for k, v in json.loads(str(data["camera"])).items()
+                               if k not in ("format", "version")})
+    assert (camera.width, camera.height) == (96, 72)
+    settings = model.ViewerSettings(**report["settings"])
+    kwargs = {k: v for k, v in settings.render_kwargs().items() if k not in ("spp", "denoise")}
+    direct = render(model.render_scene(model.as_scene(small_cloud()), settings), camera,
+                    spp=int(data["spp"]), **kwargs)
+    traced = data["noisy_color"] if "noisy_color" in data else data["color"]
+    np.testing.assert_allclose(traced, direct.color, rtol=1e-4, atol=1e-5)
+
+    shot = _load_png(tmp_path / "shot.png")
+    x, y, w, h = report["rects"]["preview"]
+    panel = shot[y:y + h, x:x + w].astype(np.float64)
+    assert panel.std() > NOT_BLANK_STD, "live viewport is blank"
+    from pointviz.images import to_srgb8
+
+    expected = to_srgb8(data["color"], float(data["exposure"])).astype(np.float64)
+    rows = np.minimum((np.arange(h) * 72 / h).astype(int), 71)
+    cols = np.minimum((np.arange(w) * 96 / w).astype(int), 95)
+    resized = expected[rows][:, cols]
+    diff = np.abs(panel - resized).mean()
+    # the picture shown may be a few passes older than the saved one: a looser bound
+    assert diff < 2 * SCREENSHOT_TOLERANCE, f"viewport differs from the live frame: {diff:.1f}"
+    assert np.abs(panel - resized[::-1]).mean() > diff + 5
+
+
+@pytest.mark.gui
+@needs_display
+def test_live_gui_never_waits_for_the_tracer_and_close_mid_frame_ends_it(tmp_path):
+    """A still pass that only ends when cancelled: while it is in flight the worker holds no
+    lock the GUI takes, GUI calls (camera updates included) complete, and closing the window
+    cancels it and ends the live worker. Waits are on observed states, never sleeps."""
+    out = _python(f"""
+        {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import json, threading, traceback
+        import pointviz
+        from pointviz.errors import CancelledError
+        from pointviz.viewer import live
+        started, res = threading.Event(), {{}}
+
+        def blocking(scene, cam, cancel=None, **kw):
+            if "sample_offset" in kw:                # a still pass: hold until cancelled
+                started.set()
+                res["cancelled"] = cancel.wait(120)
+                raise CancelledError("render cancelled")
+            return pointviz.render(scene, cam, cancel=cancel, **kw)
+
+        original = live.LiveRenderer.__init__
+        def init(self, *a, **k):
+            original(self, *a, **dict(k, render_fn=blocking))
+        live.LiveRenderer.__init__ = init
+
+        def drive(v):
+            try:
+                v.call(lambda: v.set_live(True), timeout=120)
+                assert started.wait(120), "no still pass started"
+                res["lock_free"] = not v.live._lock.locked()
+                res["tick"] = v.call(lambda: (v._live_tick(), v.live_generation)[1], timeout=60)
+                res["thread"] = v.call(lambda: v.live.thread, timeout=60)
+                v.call(v.window.close, timeout=60)
+            except BaseException:
+                res["error"] = traceback.format_exc()
+                v.app.post_to_main_thread(v.window, v.window.close)
+
+        v = pointviz.view(cloud, width=96, height=72,
+                          on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
+        th = res.pop("thread", None)
+        res["ended"] = th is not None and not th.is_alive()
+        res["ended_on_close"] = v.timings.get("live_worker_ended_on_close")
+        print("RESULT" + json.dumps(res))
+        """, tmp_path)
+    res = _driver_result(out)
+    assert res["lock_free"] and res["tick"] >= 1
+    assert res["cancelled"] and res["ended"] and res["ended_on_close"] is True
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--orbit", "2"], "--orbit: needs --live"),
+    (["--live", "--orbit", "-1"], "--orbit: expected seconds >= 0"),
+    (["--live", "--orbit", "nan"], "--orbit: expected seconds >= 0"),
+    (["--live", "--backend", "pyvista"], "--live: needs the open3d backend"),
+])
+def test_view_cli_rejects_bad_live_options(argv, message):
+    out = subprocess.run([sys.executable, "-m", "pointviz.cli", "view", "demo", *argv],
+                         check=False, capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
+    assert out.returncode != 0
+    assert message in out.stderr and "Traceback" not in out.stderr

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <cstring>
 #include <optional>
+#include <limits>
 #include <tuple>
 
 #include <memory>
@@ -22,6 +23,7 @@
 #include <thread>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/kdtree.h"
 #include "pointviz/preprocess.h"
 #include "pointviz/render.h"
@@ -416,9 +418,19 @@ NB_MODULE(_core, m) {
         .value("paper", Interpolation::Paper)
         .value("smooth", Interpolation::Smooth);
 
+    nb::enum_<Isa>(m, "Isa")
+        .value("auto", Isa::Auto)
+        .value("base", Isa::Base)
+        .value("sse42", Isa::Sse42)
+        .value("avx2", Isa::Avx2)
+        .value("avx512", Isa::Avx512);
+    m.def("isa_available", &isa_available, "isa"_a);
+    m.def("best_isa", &best_isa);
+
     nb::enum_<LodCriterion>(m, "LodCriterion")
         .value("size", LodCriterion::Size)
-        .value("deviation", LodCriterion::Deviation);
+        .value("deviation", LodCriterion::Deviation)
+        .value("budget", LodCriterion::Budget);
 
     nb::class_<TraceOptions>(m, "TraceOptions")
         .def(nb::init<>())
@@ -430,7 +442,9 @@ NB_MODULE(_core, m) {
         .def_rw("window", &TraceOptions::window)
         .def_rw("slabs", &TraceOptions::slabs)
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
-        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent);
+        .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
+        .def_rw("max_error", &TraceOptions::max_error)
+        .def_rw("isa", &TraceOptions::isa);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())
@@ -441,7 +455,10 @@ NB_MODULE(_core, m) {
         .def_rw("tan_half", &CameraModel::tan_half)
         .def_rw("width", &CameraModel::width)
         .def_rw("height", &CameraModel::height)
-        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle);
+        .def_prop_ro("pixel_angle", &CameraModel::pixel_angle)
+        .def("direction", &CameraModel::direction, "col"_a, "row"_a,
+             "Unit direction of the primary ray through continuous pixel (col, row) (the "
+             "renderer's ray model; pointviz.Camera.rays is tested against it).");
 
     nb::class_<Material>(m, "Material")
         .def(nb::init<>())
@@ -490,7 +507,10 @@ NB_MODULE(_core, m) {
         .def_rw("reflections", &RenderSettings::reflections)
         .def_rw("shadows", &RenderSettings::shadows)
         .def_rw("lod_pixels", &RenderSettings::lod_pixels)
+        .def_rw("footprint_offsets", &RenderSettings::footprint_offsets)
         .def_rw("seed", &RenderSettings::seed)
+        .def_rw("sample_offset", &RenderSettings::sample_offset)
+        .def_rw("sequence_spp", &RenderSettings::sequence_spp)
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
         .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)
@@ -550,15 +570,25 @@ NB_MODULE(_core, m) {
         .def_prop_ro("origin", [](const SurfelTree &t) -> std::array<double, 3> {
             return {t.origin()[0], t.origin()[1], t.origin()[2]};
         })
+        .def("surfel_view", [](nb::handle self) {
+            // The stored surfels without a copy, (n, 8) float32 rows: centre (local frame),
+            // radius, normal, and the packed colour's bits; read-only, alive with the tree.
+            const SurfelTree &t = nb::cast<const SurfelTree &>(self);
+            size_t shape[2] = {t.surfels().size(), 8};
+            return nb::ndarray<nb::numpy, const float, nb::ndim<2>>(
+                reinterpret_cast<const float *>(t.surfels().data()), 2, shape, self);
+        })
         .def("node_arrays", [](const SurfelTree &t) {
             // Decoded copies of the node fields, for tests and diagnostics.
             size_t n = t.nodes().size();
-            float *c, *r, *nn, *cone;
+            float *c, *r, *nn, *cone, *cspread, *pred;
             uint32_t *cnt, *idx;
             auto ac = new_array<float>({n, 3}, &c);
             auto ar = new_array<float>({n}, &r);
             auto an = new_array<float>({n, 3}, &nn);
             auto acone = new_array<float>({n}, &cone);
+            auto acs = new_array<float>({n}, &cspread);
+            auto apred = new_array<float>({n}, &pred);
             auto acnt = new_array<uint32_t>({n}, &cnt);
             auto aidx = new_array<uint32_t>({n}, &idx);
             for (size_t i = 0; i < n; ++i) {
@@ -567,6 +597,8 @@ NB_MODULE(_core, m) {
                 for (int k = 0; k < 3; ++k) c[3 * i + k] = nd.c[k], nn[3 * i + k] = a[k];
                 r[i] = nd.radius;
                 cone[i] = nd.cone();
+                cspread[i] = nd.colour_spread();
+                pred[i] = nd.has_cone() ? predicted_error(nd) : std::numeric_limits<float>::infinity();
                 cnt[i] = nd.count();
                 idx[i] = nd.index();
             }
@@ -581,6 +613,7 @@ NB_MODULE(_core, m) {
             std::copy(t.order().begin(), t.order().end(), ord);
             nb::dict d;
             d["center"] = ac; d["radius"] = ar; d["normal"] = an; d["cone"] = acone;
+            d["colour_spread"] = acs; d["predicted_error"] = apred;
             d["count"] = acnt; d["index"] = aidx; d["boxes"] = abx; d["order"] = aord;
             return d;
         })

@@ -1,12 +1,22 @@
-// pointviz — batched ray queries.
-#include "pointviz/cast.h"
-
+// pointviz — the batched ray queries of one instruction set. This file is compiled once per
+// instruction set (ext/CMakeLists.txt: POINTVIZ_ISA_NS names the inline namespace of its
+// kernels, isa.h; POINTVIZ_KERNELS the function returning its table); dispatch.cpp picks one
+// at run time and holds the public cast_rays / occluded.
 #include <cmath>
 #include <mutex>
 
+#include "pointviz/dispatch.h"
 #include "pointviz/parallel.h"
+#include "pointviz/trace.h"
+
+#ifndef POINTVIZ_KERNELS
+#define POINTVIZ_KERNELS kernels_base
+#define POINTVIZ_KERNELS_ISA Isa::Base
+#define POINTVIZ_KERNELS_NAME "base"
+#endif
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 namespace {
 
 /// Rays handled per claimed chunk: large enough to amortise scheduling, small enough to balance.
@@ -77,10 +87,8 @@ void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, d
     if (out.count) out.count[i] = uint8_t(h.count);
 }
 
-}  // namespace
-
 template <class T>
-void cast_rays(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
+void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
@@ -108,7 +116,7 @@ void cast_rays(const SurfelTree &tree, const T *rays, size_t n, const TraceOptio
 }
 
 template <class T>
-void occluded(const SurfelTree &tree, const T *rays, const float *t_max, size_t n,
+void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, size_t n,
               const TraceOptions &opt, float t_min, float pixel_angle, int threads, uint8_t *hit,
               bool count, BatchStats &stats) {
     std::mutex m;
@@ -135,13 +143,40 @@ void occluded(const SurfelTree &tree, const T *rays, const float *t_max, size_t 
     });
 }
 
-template void cast_rays<float>(const SurfelTree &, const float *, size_t, const TraceOptions &,
-                               float, int, CastOutput, bool, BatchStats &);
-template void cast_rays<double>(const SurfelTree &, const double *, size_t, const TraceOptions &,
-                                float, int, CastOutput, bool, BatchStats &);
-template void occluded<float>(const SurfelTree &, const float *, const float *, size_t,
-                              const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
-template void occluded<double>(const SurfelTree &, const double *, const float *, size_t,
-                               const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
+/// Closest hits of local rays shifted by `offset` (the renderer's batches).
+void intersect_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
+                     const TraceOptions &opt, SurfaceHit *hits) {
+    for (size_t i = 0; i < n; ++i) {
+        Ray r = rays[i];
+        r.o += offset;
+        NoStats ns;
+        closest_hit(tree, r, opt, hits[i], ns);
+    }
+}
+
+/// Any hits of local rays shifted by `offset`, two-sided (shadow rays).
+void occlude_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
+                   const TraceOptions &opt, uint8_t *hit) {
+    for (size_t i = 0; i < n; ++i) {
+        Ray r = rays[i];
+        r.o += offset;
+        NoStats ns;
+        hit[i] = any_hit(tree, r, opt, false, ns);
+    }
+}
+
+}  // namespace
+POINTVIZ_ISA_END
+
+const QueryKernels &POINTVIZ_KERNELS() {
+    static const QueryKernels k{POINTVIZ_KERNELS_ISA, POINTVIZ_KERNELS_NAME,
+                                &POINTVIZ_ISA_NS::cast_batch<float>,
+                                &POINTVIZ_ISA_NS::cast_batch<double>,
+                                &POINTVIZ_ISA_NS::occluded_batch<float>,
+                                &POINTVIZ_ISA_NS::occluded_batch<double>,
+                                &POINTVIZ_ISA_NS::intersect_local,
+                                &POINTVIZ_ISA_NS::occlude_local};
+    return k;
+}
 
 }  // namespace pointviz

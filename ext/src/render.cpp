@@ -46,6 +46,21 @@ constexpr uint32_t kDimsPerBounce = 64, kDimLights = 2, kDimGloss = 46, kDimOccl
 /// Lights beyond this many share random dimensions with the glossy lobe (still unbiased).
 constexpr uint32_t kMaxStratifiedLights = (kDimGloss - kDimLights) / 2;
 
+/// Footprint growth of a shadow ray toward `L` from a point `dist` away (inf: directional):
+/// the light's angular diameter. A shadow edge is blurred over that width anyway, so occluder
+/// detail finer than it is not seen; a hard light gives 0 and the ray keeps the width it starts
+/// with (the primary footprint at the hit).
+inline float shadow_spread(const Light &L, float dist) {
+    switch (L.type) {
+        case LightType::Directional: return 2.f * L.angle;
+        case LightType::Area: {
+            const float size = std::sqrt(length(cross(L.edge_u, L.edge_v)));
+            return dist > 0.f && dist < kInf ? size / dist : 0.f;
+        }
+        default: return dist > 0.f && dist < kInf ? 2.f * L.radius / dist : 0.f;
+    }
+}
+
 inline float srgb_to_linear(float c) {
     return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
 }
@@ -104,6 +119,7 @@ public:
     void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
         const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
         const int spp = std::max(1, set_.spp);
+        const bool jitter = (set_.sequence_spp ? set_.sequence_spp : uint32_t(spp)) > 1;
         color_.assign(size_t(npix), Vec3{0, 0, 0});
         depth_sum_.assign(size_t(npix), 0.f);
         nsum_.assign(size_t(npix), Vec3{0, 0, 0});
@@ -116,9 +132,10 @@ public:
             for (int x = x0; x < x1; ++x) {
                 uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
                 float sx = rand01(set_.seed, gp, 0, 0), sy = rand01(set_.seed, gp, 0, 1);
-                for (int s = 0; s < spp; ++s) {
+                for (int i = 0; i < spp; ++i) {
+                    const uint32_t s = set_.sample_offset + uint32_t(i);
                     float u = 0.5f, v = 0.5f;
-                    if (spp > 1) {   // R2 points, shifted per pixel (Cranley–Patterson)
+                    if (jitter) {   // R2 points, shifted per pixel (Cranley–Patterson)
                         u = float(std::fmod(kR2a * s + sx, 1.0));
                         v = float(std::fmod(kR2b * s + sy, 1.0));
                     }
@@ -128,7 +145,7 @@ public:
                     pr.ray.spread = spread;
                     pr.weight = Vec3{1, 1, 1} * (1.f / float(spp));
                     pr.pixel = uint32_t((y - y0) * tw + (x - x0));
-                    pr.sample = uint32_t(s);
+                    pr.sample = s;
                     rays_.push_back(pr);
                 }
             }
@@ -262,7 +279,8 @@ private:
             const bool follow = reflects && m.roughness == 0.f;
             if (pr.albedo)
                 albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
-            const float scale = std::max({h.radius, r.footprint(h.t), min_offset_});
+            const float scale = std::max(
+                {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
             const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
@@ -331,7 +349,7 @@ private:
                 sr.ray.tmin = tmin;
                 sr.ray.tmax = dist == kInf ? kInf : std::max(0.f, dist * (1.f - 1e-4f) - set_.offsets.normal_offset * scale);
                 sr.ray.width0 = r.footprint(h.t);
-                sr.ray.spread = 0.f;
+                sr.ray.spread = sr.ray.width0 > 0.f ? shadow_spread(L, dist) : 0.f;
                 sr.add = add;
                 sr.pixel = pr.pixel;
                 sr.ground_blocks = true;

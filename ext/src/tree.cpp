@@ -169,10 +169,12 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 for (int k = 0; k < 3; ++k) nd.axis_q[k] = quantize_axis(axis[k]);
                 const Vec3 aq = nd.axis();
                 const float aq2 = length2(aq);
-                float radius = 0.f, cosmin = 1.f, h = 0.f;
+                const Vec3 mc = sm.csum / float(r.size());
+                float radius = 0.f, cosmin = 1.f, h = 0.f, cdev = 0.f;
                 for (uint32_t k = r.b; k < r.e; ++k) {
                     const Surfel &s = surfels_[k];
                     Vec3 pc = s.p - c;
+                    cdev += length2(Vec3{channel(s.rgba, 0), channel(s.rgba, 1), channel(s.rgba, 2)} - mc);
                     float na = dot(s.n, aq);
                     radius = std::max(radius, length(pc) + s.r);
                     cosmin = std::min(cosmin, na);
@@ -181,7 +183,9 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 float theta = degenerate ? 3.1415927f
                                          : std::acos(std::clamp(cosmin / std::sqrt(aq2), -1.f, 1.f));
                 // Rounding: radius from float math; grow by a relative ulp-scale margin.
-                nd.radius = radius * (1.f + 1e-6f) + 1e-7f;
+                // The colour spread rides in the radius's low bits (rounded up: still a bound).
+                nd.radius = radius_with_byte(radius * (1.f + 1e-6f) + 1e-7f,
+                                             quantize_colour_spread(std::sqrt(cdev / float(r.size()))));
                 if (theta >= 1.5707963f) {
                     nd.cone_q = kConeNeverQ;
                 } else {
@@ -189,7 +193,6 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                     // (written so that a NaN from an infinite radius lands on the safe side)
                     nd.cone_q = q < float(kConeNeverQ - 1) ? uint16_t(q) : uint16_t(kConeNeverQ - 1);
                 }
-                Vec3 mc = sm.csum / float(r.size());
                 uint32_t slab_q = kNoSlab;
                 if (!degenerate && radius > 0.f) {
                     // Rounding margin: float error of the dot products, relative to the radius.

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import sys
-import time
+from dataclasses import MISSING, fields
 
 import numpy as np
 
 from ..errors import InputError
 from ..interrupt import stage
+from ..settings import INTERPOLATIONS, RenderSettings
 
 
 def add_input_options(p) -> None:
@@ -26,26 +27,46 @@ def add_render_options(p) -> None:
     g.add_argument("--height", type=int, default=None, help="image height (default 480)")
     g.add_argument("--fov", type=float, default=None,
                    help="vertical field of view in degrees (default 40, or the camera file's)")
-    g.add_argument("--spp", type=int, default=4, help="samples per pixel")
-    g.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
-    g.add_argument("--reflections", type=int, default=1, help="reflection bounces")
-    g.add_argument("--lod", type=float, default=1.0, metavar="PIXELS",
-                   help="level-of-detail threshold in pixels (0: full detail)")
     g.add_argument("--light", action="append", default=None, metavar="X,Y,Z[,INTENSITY]",
                    help="directional light toward X,Y,Z (repeatable)")
-    g.add_argument("--ground", choices=["auto", "matte", "mirror", "glossy", "none"],
-                   default="auto", help="ground plane under the cloud")
-    g.add_argument("--interpolation", choices=["smooth", "paper", "none"], default=None,
+    g.add_argument("--interpolation", choices=INTERPOLATIONS, default=None,
                    help="how disks around a hit are blended")
-    g.add_argument("--look", choices=["auto", "studio", "outdoor", "flat"], default="auto",
-                   help="lighting: studio (key, fill, sky occlusion, backdrop), outdoor (sun and "
-                        "sky), flat (colours as scanned); auto: outdoor for terrain tiles, "
-                        "studio for objects")
-    g.add_argument("--no-denoise", action="store_true",
-                   help="keep the tracer's noisy frame (default: denoised with Open Image Denoise "
-                        "when the 'denoise' extra is installed)")
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--threads", type=int, default=None)
+    for f in fields(RenderSettings):
+        add_setting_option(g, f)
+
+
+def add_setting_option(g, f) -> None:
+    """The command-line option of one :class:`~pointviz.settings.RenderSettings` field: its
+    flag, default, choices and help all come from the field."""
+    m = f.metadata
+    if not m["cli"]:
+        return
+    default = f.default if m["cli_default"] is MISSING else m["cli_default"]
+    flag = m["flag"] or "--" + f.name.replace("_", "-")
+    if m["kind"] is bool:  # on by default: a --no-... switch
+        g.add_argument(flag, dest=f.name, action="store_false", default=default,
+                       help=f"turn off (on by default): {m['help']}")
+        return
+    kind, kw = m["kind"], {}
+    if m["choices"]:
+        names = tuple(c for c in m["choices"] if isinstance(c, str))
+        if kind in (int, float):  # a number or a name ("--lod auto")
+            kind = _number_or(names, kind)
+        else:
+            kw["choices"] = list(names)
+    shown = "" if default is None else f" (default {default})"
+    g.add_argument(flag, dest=f.name, type=kind, default=default, metavar=m["metavar"],
+                   help=m["help"] + shown, **kw)
+
+
+def _number_or(names: tuple, kind: type):
+    """An argparse type taking one of ``names`` or a number of ``kind``."""
+    def parse(text: str):
+        word = text.strip().lower()
+        return word if word in names else kind(text)
+
+    parse.__name__ = f"{kind.__name__} or {'/'.join(names)}"
+    return parse
 
 
 def load_input(args):
@@ -106,12 +127,13 @@ def make_scene_and_camera(args, prepare: bool = True):
         scene = loaded
         if lights is not None:
             scene.lights = lights
-        if args.ground != "auto":
+        if args.ground not in (None, "auto"):  # a scene keeps its own unless told
             scene = scene.with_ground(args.ground)
-        if args.look != "auto":
+        if args.look not in (None, "auto"):
             scene = scene.with_look(args.look)
     else:
-        scene = Scene([loaded], lights=lights, ground=args.ground, look=args.look, **kw)
+        scene = Scene([loaded], lights=lights, ground=args.ground or "auto",
+                      look=args.look or "auto", **kw)
     if args.camera:
         camera = Camera.from_json(args.camera)
     elif demo_camera is not None:
@@ -126,9 +148,7 @@ def make_scene_and_camera(args, prepare: bool = True):
         h = args.height or int(round(camera.height * (args.width / camera.width)))
         camera = camera.with_size(w, h)
     if prepare:
-        from ..rendering import check_render_options
-
-        check_render_options(**render_kwargs(args))  # bad options fail before the trees
+        RenderSettings(**render_kwargs(args))  # bad options fail before the trees
         prepare_scene(scene)
     return scene, camera
 
@@ -147,9 +167,13 @@ def prepare_scene(scene) -> None:
 
 
 def render_kwargs(args) -> dict:
-    return {"shadows": not args.no_shadows, "reflections": args.reflections, "spp": args.spp,
-            "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
-            "denoise": denoise_default(args)}
+    """Keyword arguments of :func:`pointviz.render` from the options. Ground and look are the
+    scene's (:func:`make_scene_and_camera` applied them), so they are not passed again."""
+    kw = {name: getattr(args, name) for name in RenderSettings.names()}
+    kw.pop("ground")
+    kw.pop("look")
+    kw["denoise"] = denoise_default(args)
+    return kw
 
 
 def denoise_default(args) -> bool:
@@ -158,7 +182,7 @@ def denoise_default(args) -> bool:
     from ..denoise import check_available
     from ..errors import MissingDependencyError
 
-    if getattr(args, "no_denoise", False):
+    if not getattr(args, "denoise", True):
         return False
     try:
         check_available()
@@ -166,40 +190,3 @@ def denoise_default(args) -> bool:
         sys.stderr.write(f"note: frames are not denoised: {exc}\n")
         return False
     return True
-
-
-class ProgressBar:
-    """Progress on stderr: a bar redrawn in place on a terminal; elsewhere (logs, CI), one line
-    every LOG_STEP percent. Silent when stderr is not a terminal, unless ``enabled=True``."""
-
-    #: Percent between two lines when stderr is not a terminal.
-    LOG_STEP = 10
-
-    def __init__(self, label: str, enabled: bool | None = None, width: int = 30):
-        self.label = label
-        self.tty = sys.stderr.isatty()
-        self.enabled = self.tty if enabled is None else enabled
-        self.width = width
-        self.start = time.monotonic()
-        self._last = -1
-
-    def __call__(self, done: int, total: int):
-        if not self.enabled or total <= 0:
-            return True
-        pct = int(100 * done / total)
-        step = 1 if self.tty else self.LOG_STEP
-        if pct // step == self._last // step and self._last >= 0 and done < total:
-            return True
-        if pct == self._last:
-            return True
-        self._last = pct
-        el = time.monotonic() - self.start
-        if self.tty:
-            fill = int(self.width * done / total)
-            sys.stderr.write(f"\r{self.label} [{'#' * fill}{'.' * (self.width - fill)}] {pct:3d}% {el:5.1f}s")
-            if done >= total:
-                sys.stderr.write("\n")
-        else:
-            sys.stderr.write(f"{self.label}: {pct:3d}% {el:6.1f}s\n")
-        sys.stderr.flush()
-        return True

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..interrupt import stage
+from ..settings import check_int
 
 
 def add_parser(sub) -> None:
@@ -49,9 +50,7 @@ def run(args) -> int:
     for key in ("width", "height", "spp", "max_points"):
         value = getattr(args, key)
         if value is not None:
-            if value < 1:
-                raise InputError(f"--{key.replace('_', '-')}: expected a positive integer, got {value}")
-            setattr(settings, key, value)
+            setattr(settings, key, check_int(value, f"--{key.replace('_', '-')}"))
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
     with staged_folder(output, args.overwrite) as staging:
         doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=staging,

@@ -10,8 +10,9 @@ on an existing cluster with ``--scheduler tcp://HOST:PORT``, or in this process 
 
 from __future__ import annotations
 
+from ..path import DEFAULT_ORBIT_SECONDS, SERIAL
+from ..progress import ProgressBar
 from .common import (
-    ProgressBar,
     add_input_options,
     add_render_options,
     make_scene_and_camera,
@@ -20,9 +21,6 @@ from .common import (
 
 #: PATH.json value that asks for an orbit instead of a file.
 ORBIT = "orbit"
-DEFAULT_ORBIT_SECONDS = 8.0
-#: ``--scheduler`` value that renders in this process.
-SERIAL = "serial"
 
 
 def add_parser(sub) -> None:
@@ -73,10 +71,9 @@ def run(args) -> int:
         raise InputError("--camera: a path command takes its cameras from PATH.json")
     scene, _ = make_scene_and_camera(args)
     path = _camera_path(args, scene)
-    scheduler = None if args.scheduler == SERIAL else args.scheduler
     summary = render_path(
         scene, path, args.output, width=args.width, height=args.height, video=args.video,
-        fps=args.fps, scheduler=scheduler, workers=args.workers, retries=args.retries,
+        fps=args.fps, scheduler=args.scheduler, workers=args.workers, retries=args.retries,
         resume=not args.no_resume, overwrite=args.overwrite,
         progress=ProgressBar("path", enabled=True if args.progress else None),
         **render_kwargs(args))

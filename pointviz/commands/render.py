@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from .common import ProgressBar, add_input_options, add_render_options, make_scene_and_camera, render_kwargs
+from ..progress import ProgressBar
+from .common import add_input_options, add_render_options, make_scene_and_camera, render_kwargs
 
 
 def add_parser(sub) -> None:

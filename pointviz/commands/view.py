@@ -7,11 +7,13 @@ scripts, tests and docs (run it under ``xvfb-run`` on a machine without a displa
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 
+from ..errors import InputError
 from ..interrupt import cancelled, check
-from .common import add_input_options, add_render_options, denoise_default, make_scene_and_camera
+from .common import add_input_options, add_render_options, make_scene_and_camera, render_kwargs
 
 #: Leave the process without Python's teardown once the Open3D window has closed and every
 #: output is written: Open3D 0.20's GUI segfaults or hangs now and then while its static
@@ -26,6 +28,12 @@ def add_parser(sub) -> None:
     p.add_argument("--backend", choices=["open3d", "pyvista"], default="open3d",
                    help="preview toolkit (default open3d)")
     p.add_argument("--render", action="store_true", help="press Render once the preview is up")
+    p.add_argument("--live", action="store_true",
+                   help="ray trace the viewport live (1 spp at an adaptive resolution while the "
+                        "camera moves, accumulating and denoising while it holds still)")
+    p.add_argument("--orbit", type=float, metavar="SECONDS",
+                   help="with --live: circle the data for SECONDS, hold still 3 s, then save "
+                        "the screenshot and report and close")
     p.add_argument("--screenshot", metavar="OUT.png",
                    help="save a screenshot of the whole window, then exit")
     p.add_argument("--frame", metavar="OUT.npz",
@@ -44,15 +52,20 @@ def run(args) -> int:
     from ..viewer import view
     from ..viewer.model import DEFAULT_PREVIEW_MAX_POINTS
 
+    if args.orbit is not None and not args.live:
+        raise InputError("--orbit: needs --live")
+    if args.orbit is not None and not (math.isfinite(args.orbit) and args.orbit >= 0):
+        raise InputError(f"--orbit: expected seconds >= 0, got {args.orbit}")
+    if args.live and args.backend != "open3d":
+        raise InputError("--live: needs the open3d backend")
     scene, camera = make_scene_and_camera(args, prepare=False)
-    overrides = {"spp": args.spp, "reflections": args.reflections, "shadows": not args.no_shadows,
-                 "lod_pixels": args.lod, "seed": args.seed, "threads": args.threads,
-                 "denoise": denoise_default(args),
+    overrides = {**render_kwargs(args),
                  "color_mode": args.color_by, "ground": None,  # the scene already has --ground
                  "width": args.width or 0, "height": args.height or 0,
                  "preview_max_points": args.preview_points or DEFAULT_PREVIEW_MAX_POINTS}
     given_camera = camera if (args.camera or args.input == "demo") else None
-    view(scene, args.backend, camera=given_camera, render=args.render,
+    view(scene, args.backend, camera=given_camera, render=args.render, live=args.live,
+                  orbit=args.orbit,
                   screenshot=args.screenshot, frame=args.frame, report=args.report,
                   overwrite=args.overwrite, **overrides)
     interrupted = cancelled()  # Ctrl-C in the terminal closed the window

@@ -9,7 +9,7 @@ replace the ``pointviz.compare`` function with the package.)
 
 from __future__ import annotations
 
-from .mesh import MeshGeometry
+from ..meshes import MeshGeometry
 from .run import Settings, compare
 
 __all__ = ["MeshGeometry", "Settings", "compare"]

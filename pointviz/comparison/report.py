@@ -14,13 +14,7 @@ import numpy as np
 from ..files import atomic_write_bytes, atomic_write_text
 from ..images import encode_png
 from .schema import SCHEMA, json_safe, validate
-
-#: Marker and colour per method in the charts.
-STYLE = {
-    "discs": ("s", "#7f7f7f"), "surfels-paper": ("^", "#1f77b4"),
-    "surfels-smooth": ("o", "#2ca02c"), "poisson": ("D", "#d62728"),
-    "ball-pivoting": ("v", "#9467bd"), "alpha-shape": ("P", "#ff7f0e"),
-}
+from .style import STYLE
 
 
 def slug(label: str) -> str:

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import FileFormatError, InputError
+from ..meshes import MeshGeometry
 from . import analytic, metrics
-from .mesh import MeshGeometry
+from .settings import Settings, render_geometry
 
 #: Method names, in report order.
 METHODS = ("discs", "surfels-paper", "surfels-smooth", "poisson", "ball-pivoting", "alpha-shape")
@@ -34,33 +34,6 @@ def reference_note(kind: str, ref_vertices: int | None, points: int) -> str | No
             "favours smooth reconstructions (Poisson) over surfels, which keep the scans' detail "
             "and their noise; errors against it measure agreement with that smoothed surface, "
             "not with the true one.")
-
-
-@dataclass
-class Settings:
-    """Sizes and sweeps of a run. :meth:`full` for reports, :meth:`quick` for tests (< 60 s)."""
-
-    width: int = 640
-    height: int = 480
-    spp: int = 4
-    lods: tuple = (0.0, 1.0, 2.0, 4.0)
-    poisson_depths: tuple = (6, 7, 8, 9, 10)
-    max_points: int | None = None      # subsample larger inputs (uniformly, seeded)
-    generated_points: int = 200_000    # points of a generated shape
-    alpha_max_points: int = 300_000    # alpha shapes need a Delaunay tetrahedralisation
-    bpa_max_points: int = 600_000
-    seed: int = 0
-    up: tuple | None = None            # "up" of the scene; compare() sets the cloud's hint
-    extra: dict = field(default_factory=dict)
-
-    @classmethod
-    def full(cls) -> Settings:
-        return cls()
-
-    @classmethod
-    def quick(cls) -> Settings:
-        return cls(width=160, height=120, spp=1, lods=(0.0, 2.0), poisson_depths=(6, 7),
-                   max_points=20_000, generated_points=12_000)
 
 
 def load_input(source, settings: Settings, reference=None):
@@ -111,20 +84,6 @@ def _subsample(cloud, n, seed):
         return cloud
     idx = np.sort(np.random.default_rng(seed).choice(len(cloud), n, replace=False))
     return cloud.subset(idx)
-
-
-def render_geometry(geometry, camera, settings: Settings, lod: float = 0.0, spp=None, up=None):
-    """One frame of one geometry with the comparison's fixed scene: no ground (so alpha and
-    depth are the object's), sky, default lights, self-shadows. ``up`` (the cloud's hint) must
-    be passed for every backend alike: a mesh has no hint, and the sky and the default light
-    follow it."""
-    from ..rendering import render
-    from ..scene import COMPARE_LOOK, Scene
-
-    scene = Scene([geometry], ground="none", up=up if up is not None else settings.up,
-                  look=COMPARE_LOOK)
-    return render(scene, camera, spp=spp or settings.spp, lod_pixels=lod, reflections=0,
-                  seed=settings.seed, shadows=True)
 
 
 def shared_preprocess(cloud) -> dict:
@@ -186,17 +145,17 @@ def run_methods(cloud, camera, settings: Settings, methods, reference_frame, dia
                       "lod_pixels": float(lod)}, steps, frame, wall, {"surfels": len(surfels)})
             continue
         if method == "poisson":
-            from .reconstruct import poisson
+            from ..reconstruct import poisson
             runs = [(f"poisson depth {d}", (lambda d=d: poisson(cloud, d))) for d in
                     settings.poisson_depths]
         elif method == "ball-pivoting":
-            from .reconstruct import ball_pivoting
+            from ..reconstruct import ball_pivoting
             if len(cloud) > settings.bpa_max_points:
                 log(f"  ball-pivoting skipped: {len(cloud)} points > {settings.bpa_max_points}")
                 continue
             runs = [("ball-pivoting", lambda: ball_pivoting(cloud))]
         elif method == "alpha-shape":
-            from .reconstruct import alpha_shape
+            from ..reconstruct import alpha_shape
             if len(cloud) > settings.alpha_max_points:
                 log(f"  alpha-shape skipped: {len(cloud)} points > {settings.alpha_max_points}")
                 continue

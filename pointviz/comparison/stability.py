@@ -13,9 +13,10 @@ import numpy as np
 from .. import shapes
 from ..camera import Camera
 from ..cloud import PointCloud
+from ..meshes import MeshGeometry
 from . import analytic, metrics
-from .mesh import MeshGeometry
-from .run import Settings, render_geometry
+from .settings import Settings, render_geometry
+from .style import STYLE
 
 #: A method "breaks" at the first sweep value where one of these is exceeded: a FLIP of 0.1 is
 #: a clearly visible difference over the whole object, 5% of the reference silhouette missing is
@@ -90,8 +91,8 @@ def sweeps(quick: bool):
 
 
 def _method_frame(method, cloud, camera, settings, depth):
+    from ..reconstruct import ball_pivoting, poisson
     from ..surfels import SurfelScene
-    from .reconstruct import ball_pivoting, poisson
 
     if method == "discs":
         return render_geometry(SurfelScene(cloud, interpolation="none"), camera, settings, 0.0)
@@ -168,7 +169,6 @@ def stability_chart(result: dict, path: Path, overwrite: bool) -> str:
     import matplotlib.pyplot as plt
 
     from ..files import atomic_write_bytes
-    from .report import STYLE
 
     sws = result["sweeps"]
     fig, axes = plt.subplots(2, (len(sws) + 1) // 2, figsize=(15, 7.5))

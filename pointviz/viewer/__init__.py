@@ -11,6 +11,7 @@ Submodules are imported on use; :mod:`.model` and :mod:`.worker` need no GUI too
 
 from __future__ import annotations
 
+import math
 import time
 
 from ..errors import InputError
@@ -20,7 +21,7 @@ BACKENDS = ("open3d", "pyvista")
 
 
 def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
-         render: bool = False, screenshot=None, frame=None, report=None, overwrite=False,
+         render: bool = False, live: bool = False, orbit=None, screenshot=None, frame=None, report=None, overwrite=False,
          title: str | None = None, window_size=None, on_ready=None, **setting_overrides):
     """Open the viewer on a cloud or scene and block until its window closes.
 
@@ -35,6 +36,12 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
         (any :class:`~pointviz.viewer.model.ViewerSettings` field, e.g. ``spp=16``).
     render : bool
         Press Render once the preview is up.
+    live : bool
+        Start with the live ray-traced viewport (Open3D backend), hold still 3 s, then go on
+        (render, screenshot...).
+    orbit : float, optional
+        With ``live``: first circle the data for this many seconds (the report's ``live_fps``,
+        ``live_resolution``, ``still_spp``, ``preview_fps``), then close the window.
     screenshot : path, optional
         Save a PNG of the whole window (preview and ray-traced frame), then close it.
     frame : path, optional
@@ -70,15 +77,22 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
             from ..files import check_output_path
 
             check_output_path(path, overwrite)
-    automated = render or screenshot is not None or frame is not None
+    if orbit is not None and not (live and float(orbit) >= 0 and math.isfinite(float(orbit))):
+        raise InputError(f"orbit: expected seconds >= 0 with live=True, got {orbit!r}"
+                         + ("" if live else " without live"))
+    if live and backend != "open3d":
+        raise InputError("live: the live viewport needs the open3d backend")
+    automated = render or live or screenshot is not None or frame is not None
     if backend == "open3d":
         from . import o3d_app
 
         auto = None
         if automated or report is not None:
-            auto = o3d_app.Automation(render=render, screenshot=screenshot, frame=frame,
+            auto = o3d_app.Automation(render=render, live=live, orbit=orbit,
+                                      screenshot=screenshot, frame=frame,
                                       report=report, overwrite=overwrite,
-                                      close=screenshot is not None or frame is not None)
+                                      close=screenshot is not None or frame is not None
+                                      or orbit is not None)
         viewer = o3d_app.run(scene, settings, camera, title, auto, t_start,
                              window_size or o3d_app.DEFAULT_WINDOW_SIZE, on_ready)
         error = viewer.automation_error

@@ -14,17 +14,23 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from ..errors import InputError
+from ..settings import DEFAULTS, RenderSettings, check_int
 
 #: Ways of colouring the preview.
 COLOR_MODES = ("rgb", "normal", "height", "intensity")
-#: Grounds offered by the viewer (a subset of Scene's grounds).
+#: Grounds offered by the viewer (a subset of :data:`pointviz.settings.GROUNDS`).
 GROUNDS = ("none", "matte", "mirror")
+#: The render settings the viewer offers (ground and look are the scene's, see render_scene).
+RENDER_FIELDS = ("shadows", "reflections", "spp", "lod_pixels", "max_error", "seed", "threads",
+                 "denoise")
 #: How the ray-traced frame is shown: next to the preview, or over it (toggled).
 DISPLAYS = ("side", "overlay")
 #: Most points drawn by the preview. Above this the preview shows a random subset whose disks are
 #: enlarged to keep the surface closed; Mesa's software rasteriser (llvmpipe) still redraws
 #: about 1.5 M lit points at interactive rates on two cores, the ray tracer always uses all.
 DEFAULT_PREVIEW_MAX_POINTS = 1_500_000
+#: Preview background (sRGB), close to the ray tracer's sky at the horizon.
+PREVIEW_BACKGROUND = (0.82, 0.86, 0.92, 1.0)
 #: Seed of the preview subset, so the same cloud always previews the same points.
 PREVIEW_SUBSET_SEED = 0
 #: Default light, degrees: azimuth around ``up`` from the scene's first horizontal axis, and
@@ -64,8 +70,11 @@ class ViewerSettings:
         Mirror/glossy bounces, 0..16.
     spp : int
         Samples per pixel, 1..4096.
-    lod_pixels : float
-        Ray tracer level-of-detail threshold in pixels (0 = full detail).
+    lod_pixels : float or "auto"
+        Ray tracer level-of-detail threshold in pixels (0 = full detail), or "auto": the error
+        budget ``max_error`` (see :func:`pointviz.render`).
+    max_error : float or None
+        With ``lod_pixels="auto"``: mean FLIP the level of detail may cost (default 0.005).
     light_azimuth_deg, light_elevation_deg : float
         Direction toward the (single directional) light, relative to the scene's up.
     light_intensity : float
@@ -82,10 +91,11 @@ class ViewerSettings:
     color_mode: str = "rgb"
     point_scale: float = 1.0
     preview_max_points: int = DEFAULT_PREVIEW_MAX_POINTS
-    shadows: bool = True
-    reflections: int = 1
-    spp: int = 4
-    lod_pixels: float = 1.0
+    shadows: bool = DEFAULTS.shadows
+    reflections: int = DEFAULTS.reflections
+    spp: int = DEFAULTS.spp
+    lod_pixels: float | str = DEFAULTS.lod_pixels
+    max_error: float | None = DEFAULTS.max_error
     light_azimuth_deg: float = DEFAULT_LIGHT_AZIMUTH_DEG
     light_elevation_deg: float = DEFAULT_LIGHT_ELEVATION_DEG
     light_intensity: float = 1.1
@@ -93,9 +103,9 @@ class ViewerSettings:
     width: int = 0
     height: int = 0
     display: str = "side"
-    seed: int = 0
-    threads: int | None = None
-    denoise: bool = False
+    seed: int = DEFAULTS.seed
+    threads: int | None = DEFAULTS.threads
+    denoise: bool = DEFAULTS.denoise
 
     def __post_init__(self) -> None:
         self.validate()
@@ -108,12 +118,11 @@ class ViewerSettings:
             raise InputError(f"ground: expected one of {GROUNDS} or None, got {self.ground!r}")
         if self.display not in DISPLAYS:
             raise InputError(f"display: expected one of {DISPLAYS}, got {self.display!r}")
-        for name, lo, hi in (("reflections", 0, 16), ("spp", 1, 4096), ("width", 0, 16384),
-                             ("height", 0, 16384), ("preview_max_points", 1, 2**40)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
-                raise InputError(f"{name}: expected an integer in [{lo}, {hi}], got {v!r}")
-        for name in ("point_scale", "lod_pixels", "light_intensity"):
+        self.render_settings()  # the render settings, checked where they are defined
+        for name, lo, hi in (("width", 0, 16384), ("height", 0, 16384),
+                             ("preview_max_points", 1, 2**40)):
+            check_int(getattr(self, name), name, lo, hi)
+        for name in ("point_scale", "light_intensity"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"{name}: expected a finite number >= 0, got {v!r}")
@@ -123,13 +132,18 @@ class ViewerSettings:
 
     def updated(self, **changes) -> ViewerSettings:
         """A validated copy with some fields replaced."""
+        if not isinstance(changes.get("lod_pixels", "auto"), str):
+            changes.setdefault("max_error", None)  # a threshold typed in ends the budget
         return replace(self, **changes)
+
+    def render_settings(self) -> RenderSettings:
+        """The :class:`~pointviz.settings.RenderSettings` these settings hold (the ground is
+        the viewer's own choice, applied to the scene by :func:`render_scene`)."""
+        return RenderSettings(**{name: getattr(self, name) for name in RENDER_FIELDS})
 
     def render_kwargs(self) -> dict:
         """Keyword arguments of :func:`pointviz.render` for these settings."""
-        return {"shadows": bool(self.shadows), "reflections": int(self.reflections),
-                "spp": int(self.spp), "lod_pixels": float(self.lod_pixels),
-                "seed": int(self.seed), "threads": self.threads, "denoise": bool(self.denoise)}
+        return {name: getattr(self.render_settings(), name) for name in RENDER_FIELDS}
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -207,6 +221,8 @@ def render_scene(scene, settings: ViewerSettings):
     for i in range(len(scene.objects)):  # build the trees once, on the shared objects
         scene.surfel_scene(i)
     out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
+    if scene.lights is None and scene.look.key <= 0:  # a look without a key light ("flat")
+        return out
     angle = scene.look.key_angle_deg
     for light in scene.lights or ():
         if isinstance(light, DirectionalLight):

@@ -17,19 +17,19 @@ pushes it into the widgets and the preview scene.
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import threading
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from .. import interrupt
 from ..errors import InputError, require
 from . import model
-from .worker import RenderWorker
+from .model import PREVIEW_BACKGROUND
+from .o3d_actions import ActionsMixin
+from .o3d_automation import Automation, AutomationMixin, grab_window, save_frame_npz
+from .o3d_live import LiveMixin
+from .worker import RenderWorker, display_image
 
 #: Side panel width, in em (font heights).
 PANEL_WIDTH_EM = 19
@@ -45,64 +45,11 @@ SUN_INTENSITY_PER_UNIT = 75000.0
 #: Open3D image-based (ambient) light intensity of the preview: dimmer than Open3D's default so
 #: that the sun's direction reads on the splats, like the ray tracer's sky ambient.
 PREVIEW_AMBIENT = 15000.0
-#: Preview background (sRGB), close to the ray tracer's sky at the horizon.
-PREVIEW_BACKGROUND = (0.82, 0.86, 0.92, 1.0)
-#: Automation: seconds to wait after the preview's first frame before rendering (the software
-#: rasteriser presents the first frames late), and after showing the frame before the grab.
-AUTOMATION_WARMUP_S = 0.6
-AUTOMATION_SETTLE_S = 0.5
-#: Automation: attempts to grab a non-blank screenshot (AUTOMATION_SETTLE_S apart).
-SCREENSHOT_ATTEMPTS = 10
-#: A grab whose pixel standard deviation is at most this is blank (nothing presented yet).
-BLANK_STD = 1.0
 #: Ground quad half size, in scene diagonals.
 GROUND_HALF_SIZE = 2.0
 
 
-@dataclass
-class Automation:
-    """What ``pointviz view --render --screenshot`` (and the tests) ask the window to do.
-
-    Attributes
-    ----------
-    render : bool
-        Press Render once the preview is up.
-    screenshot : str or None
-        Save a screenshot of the whole window there (PNG), then close.
-    frame : str or None
-        Save the ray-traced frame (``.npz`` with color/depth/normal/alpha and the camera JSON).
-    report : str or None
-        Write a JSON report: timings, widget rectangles in the screenshot, camera, settings.
-    overwrite : bool
-    close : bool
-        Close the window when done.
-    """
-
-    render: bool = False
-    screenshot: str | None = None
-    frame: str | None = None
-    report: str | None = None
-    overwrite: bool = False
-    close: bool = True
-    state: str = "wait"
-    t_state: float = 0.0
-    info: dict = field(default_factory=dict)
-
-
-def grab_window(window_rect) -> np.ndarray:
-    """Pixels of a screen rectangle of the X display, (h, w, 3) uint8.
-
-    Uses Pillow's XCB grab (``ImageGrab.grab(xdisplay=...)``): it reads what the X server shows,
-    i.e. the whole window as presented, panel and all.
-    """
-    from PIL import ImageGrab
-
-    x, y, w, h = window_rect
-    img = ImageGrab.grab(bbox=(x, y, x + w, y + h), xdisplay=os.environ.get("DISPLAY"))
-    return np.asarray(img.convert("RGB"))
-
-
-class O3DViewer:
+class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
     """The viewer window (GUI thread).
 
     Parameters
@@ -146,6 +93,7 @@ class O3DViewer:
         self._first_tick = None
         self._closing = False
         self.worker = RenderWorker(self._post_progress, self._post_done, self._post_error)
+        self._init_live()
 
         lo, hi = (np.asarray(b, dtype=np.float64) for b in scene.bounds())
         self.center = 0.5 * (lo + hi)
@@ -154,6 +102,7 @@ class O3DViewer:
         w, h = window_size
         self.window = self.app.create_window(title, w, h)
         self._build_widgets()
+        self._fit_viewport()
         self._load_preview()
         self._setup_camera(camera)
         self._apply_settings()
@@ -186,6 +135,7 @@ class O3DViewer:
         self.btn_cancel = self._button(row, "Cancel", self._on_cancel)
         self.btn_cancel.enabled = False
         box.add_child(row)
+        self._build_live_widgets(box)
         self.progress = gui.ProgressBar()
         box.add_child(self.progress)
         self.render_label = gui.Label("press Render (R)")
@@ -298,7 +248,8 @@ class O3DViewer:
         self.chk_shadows.checked = s.shadows
         self.num_reflections.int_value = s.reflections
         self.num_spp.int_value = s.spp
-        self.num_lod.double_value = s.lod_pixels
+        if s.lod_pixels != "auto":  # the automatic level of detail has no threshold to show
+            self.num_lod.double_value = s.lod_pixels
         self.sl_az.int_value = round(s.light_azimuth_deg)
         self.sl_el.int_value = round(s.light_elevation_deg)
         self.cmb_ground.selected_text = "scene" if s.ground is None else s.ground
@@ -313,6 +264,8 @@ class O3DViewer:
         self._apply_lighting()
         self._apply_ground()
         self._update_point_size(force=True)
+        if self.live is not None:  # a reloaded cloud or ground stays hidden in live mode
+            self._show_splats(False)
         self.window.set_needs_layout()
 
     def _apply_lighting(self) -> None:
@@ -387,6 +340,17 @@ class O3DViewer:
         if self.settings.display == "side":
             area_w //= 2
         return max(area_w, 1), max(area_h, 1)
+
+    def _fit_viewport(self) -> None:
+        """Live automation with a set width and height: size the window so that the preview (the
+        live viewport) has exactly that many pixels (the size applies after the next event)."""
+        a, s = self.automation, self.settings
+        if a is None or not a.live or not (s.width and s.height):
+            return
+        n = 2 if s.display == "side" else 1
+        size = self.gui.Size(n * s.width + int(PANEL_WIDTH_EM * self.em),
+                             s.height + int(STATUS_HEIGHT_EM * self.em))
+        self.window.size = size
 
     def apply_camera(self, camera) -> None:
         """Point the preview's camera like ``camera`` (eye, target, up), with a vertical field
@@ -476,6 +440,7 @@ class O3DViewer:
             redraw |= self._advance_path(now)
         if self.automation is not None:
             self._automate(now)
+        self._live_tick()
         return redraw
 
     def _on_mouse(self, event):
@@ -485,6 +450,9 @@ class O3DViewer:
         if event.type == self.gui.KeyEvent.Type.DOWN and event.key == self.gui.KeyName.R:
             self._on_render()
             return True
+        if event.type == self.gui.KeyEvent.Type.DOWN and event.key == self.gui.KeyName.L:
+            self.set_live(self.live is None)
+            return True
         return False
 
     def _on_close(self) -> bool:
@@ -492,6 +460,7 @@ class O3DViewer:
         t0 = time.monotonic()
         self.closed = True
         ended = self.worker.shutdown()
+        ended = self._close_live() and ended
         self.timings["close_join_s"] = time.monotonic() - t0
         self.timings["worker_ended_on_close"] = ended
         self._write_report()
@@ -574,16 +543,15 @@ class O3DViewer:
              "size": [result.frame.width, result.frame.height],
              "spp": self.settings.spp})
         self.progress.value = 1.0
-        img = result.frame.to_srgb8()
         if result.mesh_frame is not None:
-            gap = np.full((img.shape[0], 4, 3), 255, np.uint8)
-            img = np.concatenate([img, gap, result.mesh_frame.to_srgb8()], axis=1)
             self.render_label.text = f"points | {result.mesh_note}"
         else:
             self.render_label.text = f"done in {result.seconds:.2f} s"
-        self.result.update_image(self.o3d.geometry.Image(np.ascontiguousarray(img)))
+        img = result.image if result.image is not None else display_image(result)
+        self.result.update_image(self.o3d.geometry.Image(img))
         self._update_status()
         self.window.set_needs_layout()
+        self.window.post_redraw()
         if self.automation is not None and self.automation.state == "rendering":
             self._set_auto_state("settle")
 
@@ -602,237 +570,6 @@ class O3DViewer:
         if self.automation is not None and self.automation.state == "rendering":
             self.automation.info["error"] = f"{type(exc).__name__}: {exc}"
             self._set_auto_state("settle")
-
-    # ================================================================== output actions
-    def _file_dialog(self, title, filters, on_done) -> None:
-        gui = self.gui
-        dlg = gui.FileDialog(gui.FileDialog.SAVE, title, self.window.theme)
-        for ext, desc in filters:
-            dlg.add_filter(ext, desc)
-
-        def done(path):
-            self.window.close_dialog()
-            try:
-                on_done(path)
-            except (OSError, InputError) as exc:
-                self._message(title, str(exc))
-
-        dlg.set_on_cancel(self.window.close_dialog)
-        dlg.set_on_done(done)
-        self.window.show_dialog(dlg)
-
-    def _on_save_image(self) -> None:
-        if self.frame is None:
-            self._message("Save image", "Render a frame first.")
-            return
-        frame = self.frame
-        self._file_dialog("Save image", [(".png", "PNG"), (".exr", "OpenEXR (linear)")],
-                          lambda p: self._status_note(f"saved {frame.save(p)}"))
-
-    def _on_copy_camera(self) -> None:
-        """Show the current camera as JSON for ``pointviz render --camera`` (select + copy, or
-        save it)."""
-        camera = self.frame_camera if self.frame is not None else self.current_camera()
-        text = model.camera_json(camera)
-        self.last_camera_json = text
-        gui = self.gui
-        dlg = gui.Dialog("Camera")
-        em = self.em
-        layout = gui.Vert(int(0.5 * em), gui.Margins(em, em, em, em))
-        layout.add_child(gui.Label("Camera for `pointviz render --camera CAM.json`:"))
-        edit = gui.TextEdit()
-        edit.text_value = text.replace("\n", " ")
-        layout.add_child(edit)
-        row = gui.Horiz(int(0.5 * em))
-        save = gui.Button("Save as...")
-
-        def save_as():
-            self.window.close_dialog()
-            self._file_dialog("Save camera", [(".json", "camera JSON")],
-                              lambda p: self._status_note(f"saved {camera.to_json(p)}"))
-
-        save.set_on_clicked(save_as)
-        close = gui.Button("Close")
-        close.set_on_clicked(self.window.close_dialog)
-        row.add_child(save)
-        row.add_child(close)
-        layout.add_child(row)
-        dlg.add_child(layout)
-        self.window.show_dialog(dlg)
-        print(text, end="", flush=True)
-
-    def _on_add_keyframe(self) -> None:
-        from ..path import CameraPath
-
-        camera = self.current_camera()
-        if self.path is None:
-            self.path = CameraPath(width=camera.width, height=camera.height)
-        try:
-            self.path.add(camera)
-        except InputError as exc:
-            self._message("Add keyframe", str(exc))
-        self.path_label.text = f"path: {len(self.path)} keyframes, {self.path.duration:.1f} s"
-
-    def _on_save_path(self) -> None:
-        if self.path is None or len(self.path) < 2:
-            self._message("Save path", "Add at least two keyframes first.")
-            return
-        path = self.path
-        self._file_dialog("Save camera path", [(".json", "camera path JSON")],
-                          lambda p: self._status_note(f"saved {path.save(p)}"))
-
-    def _on_play_path(self) -> None:
-        if self.playing is not None:
-            self.playing = None
-            self.btn_play.text = "Play path"
-            return
-        if self.path is None or len(self.path) < 2:
-            self._message("Play path", "Add at least two keyframes first.")
-            return
-        self.playing = (time.monotonic(), self.path)
-        self.btn_play.text = "Stop"
-
-    def _advance_path(self, now) -> bool:
-        t0, path = self.playing
-        t = path.start + (now - t0)
-        if t >= path.start + path.duration:
-            t = path.start + path.duration
-            self.playing = None
-            self.btn_play.text = "Play path"
-        self.apply_camera(path.camera_at(t))
-        return True
-
-    def _status_note(self, text) -> None:
-        self.render_label.text = text
-
-    def _message(self, title, text) -> None:
-        if self.automation is not None:  # no modal dialogs in automation: record instead
-            self.automation.info.setdefault("messages", []).append(f"{title}: {text}")
-            return
-        self.window.show_message_box(title, text)
-
-    # ================================================================== automation
-    def _set_auto_state(self, state) -> None:
-        self.automation.state = state
-        self.automation.t_state = time.monotonic()
-
-    def _automate(self, now) -> None:
-        """One step of the automation state machine (GUI thread, from the tick event)."""
-        a = self.automation
-        if a.state == "wait":
-            self._set_auto_state("warmup")
-        elif a.state == "warmup" and now - a.t_state >= AUTOMATION_WARMUP_S:
-            if a.render:
-                self._set_auto_state("rendering")
-                self._on_render()
-            else:
-                self._set_auto_state("settle")
-        elif a.state == "settle" and now - a.t_state >= AUTOMATION_SETTLE_S:
-            a.info["attempts"] = a.info.get("attempts", 0) + 1
-            shot = self.screenshot() if a.screenshot else None
-            if shot is not None and shot.std() <= BLANK_STD and a.info["attempts"] < SCREENSHOT_ATTEMPTS:
-                self._set_auto_state("settle")  # not presented yet: grab again a bit later
-                return
-            self._set_auto_state("done")
-            self._finish_automation(shot)
-
-    def widget_rects(self) -> dict:
-        """Preview, frame and panel rectangles relative to the window's content (pixels)."""
-        r = self.window.content_rect
-
-        def rel(f):
-            return [f.x - r.x, f.y - r.y, f.width, f.height]
-
-        return {"preview": rel(self.preview.frame), "result": rel(self.result.frame),
-                "panel": rel(self.panel.frame), "content": [0, 0, r.width, r.height]}
-
-    def screenshot(self) -> np.ndarray:
-        """The whole window's content as shown on screen, (h, w, 3) uint8 (any thread).
-
-        The first frames of a software-rendered window can reach the X server late; callers
-        retry while the grab is blank (see BLANK_STD).
-        """
-        os_frame = self.window.os_frame
-        r = self.window.content_rect
-        return grab_window((os_frame.x + r.x, os_frame.y + r.y, r.width, r.height))
-
-    def _finish_automation(self, shot) -> None:
-        from ..files import atomic_write_bytes
-        from ..images import encode_png
-
-        a = self.automation
-        try:
-            if shot is not None:
-                atomic_write_bytes(a.screenshot, encode_png(shot), a.overwrite)
-                a.info["screenshot"] = os.fspath(a.screenshot)
-                a.info["screenshot_size"] = [int(shot.shape[1]), int(shot.shape[0])]
-            if a.frame and self.frame is not None:
-                save_frame_npz(a.frame, self.frame, self.frame_camera, a.overwrite)
-        except Exception as exc:  # noqa: BLE001 - reported, then the window closes
-            a.info["error"] = f"{type(exc).__name__}: {exc}"
-        if a.close:
-            # not from inside this tick event: closing a window in its own callback crashes
-            self.app.post_to_main_thread(self.window, self.window.close)
-
-    @property
-    def automation_error(self) -> str | None:
-        """What went wrong in automation (render error, screenshot failure), else None."""
-        return None if self.automation is None else self.automation.info.get("error")
-
-    def report(self) -> dict:
-        a = self.automation
-        return {"timings": self.timings, "rects": self.widget_rects(),
-                "settings": self.settings.to_dict(),
-                "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
-                "preview_points": len(self.preview_info.points),
-                "total_points": int(self.preview_info.total),
-                "status": self.status.text, "render_label": self.render_label.text,
-                **({} if a is None else {"automation": a.info})}
-
-    def _write_report(self) -> None:
-        a = self.automation
-        if a is None or not a.report:
-            return
-        from ..files import atomic_write_text
-
-        atomic_write_text(a.report, json.dumps(self.report(), indent=2, default=str),
-                          overwrite=a.overwrite)
-
-    # ================================================================== scripting
-    def call(self, fn, timeout: float = 30.0):
-        """Run ``fn()`` on the GUI thread and return its result (call from another thread)."""
-        box: dict = {}
-        done = threading.Event()
-
-        def run():
-            try:
-                box["value"] = fn()
-            except BaseException as exc:  # noqa: BLE001 - re-raised on the caller's thread
-                box["error"] = exc
-            done.set()
-
-        self.app.post_to_main_thread(self.window, run)
-        if not done.wait(timeout):
-            raise TimeoutError(f"GUI thread did not run the call within {timeout} s")
-        if "error" in box:
-            raise box["error"]
-        return box.get("value")
-
-
-def save_frame_npz(path, frame, camera, overwrite=False) -> None:
-    """Frame buffers and camera JSON in one ``.npz`` (tests compare it with a direct render)."""
-    import io
-
-    from ..files import atomic_write_bytes
-
-    buf = io.BytesIO()
-    extra = {k: getattr(frame, k) for k in ("albedo", "object_alpha", "noisy_color")
-             if getattr(frame, k, None) is not None}
-    np.savez(buf, color=frame.color, depth=frame.depth, normal=frame.normal, alpha=frame.alpha,
-             camera=np.array(model.camera_json(camera)), exposure=np.float64(frame.exposure),
-             **extra)
-    atomic_write_bytes(path, buf.getvalue(), overwrite)
-
 
 def _compare_available() -> bool:
     import importlib.util

@@ -192,7 +192,7 @@ class PVViewer:
         self.timings.setdefault("renders", []).append(
             {"seconds": result.seconds, "core_seconds": result.frame.stats["seconds"],
              "size": [result.frame.width, result.frame.height]})
-        img = result.frame.to_srgb8()
+        img = result.image if result.image is not None else result.frame.to_srgb8()
         h, w = img.shape[:2]
         pl.subplot(0, 1)
         plane = self.pv.Plane(center=(w / 2, h / 2, 0), direction=(0, 0, 1), i_size=w, j_size=h)

@@ -68,12 +68,16 @@ class RenderResult:
         With ``compare``: the reconstructed mesh, same camera and shading.
     mesh_note : str
         With ``compare``: faces and reconstruction time.
+    image : (h, w, 3) uint8 or None
+        What the GUI shows: the frame in sRGB (with ``compare``, the mesh's beside it), made on
+        the worker thread so that the GUI thread only uploads it.
     """
 
     frame: object
     seconds: float
     mesh_frame: object = None
     mesh_note: str = ""
+    image: object = None
 
 
 class RenderWorker:
@@ -161,11 +165,27 @@ class RenderWorker:
                     raise CancelledError("render cancelled")
                 result.mesh_frame = render_fn(mesh_scene, job.camera, progress=progress,
                                               cancel=cancel, **kwargs)
+            result.image = display_image(result)
         except BaseException as exc:  # noqa: BLE001 - every failure goes back to the GUI
             self._on_error(job.job_id, exc)
             return
         result.seconds = time.monotonic() - start
         self._on_done(job.job_id, result)
+
+
+#: White gap between the point and mesh pictures of a comparison, pixels.
+COMPARE_GAP_PX = 4
+
+
+def display_image(result: RenderResult):
+    """The sRGB picture of a result, (h, w, 3) uint8: the frame, and the mesh's to its right."""
+    import numpy as np
+
+    img = result.frame.to_srgb8()
+    if result.mesh_frame is not None:
+        gap = np.full((img.shape[0], COMPARE_GAP_PX, 3), 255, np.uint8)
+        img = np.concatenate([img, gap, result.mesh_frame.to_srgb8()], axis=1)
+    return np.ascontiguousarray(img)
 
 
 #: Octree depth of the viewer's screened Poisson reconstruction (2**8 cells across the object:
@@ -181,8 +201,8 @@ def mesh_scene_of(scene):
     (Scene, str)
         The mesh scene (same materials, lights, ground, sky) and a note for the status bar.
     """
-    from ..comparison import MeshGeometry
-    from ..comparison.reconstruct import poisson
+    from ..meshes import MeshGeometry
+    from ..reconstruct import poisson
     from ..scene import Scene
 
     geoms, faces, secs = [], 0, 0.0

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <random>
@@ -15,6 +16,7 @@
 #include <vector>
 
 #include "pointviz/cast.h"
+#include "pointviz/dispatch.h"
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
@@ -249,6 +251,83 @@ void test_random_clouds_match_brute_force() {
     }
 }
 
+/// Every instruction set's kernels give the portable kernels' answers bit for bit: closest hits
+/// (t, normal, colour, radius, index, count), any hits and the statistics, with level of detail,
+/// culling, interpolation, boxes and slabs on and off, on random clouds (including leaves of 1,
+/// 8 and 31 surfels: the eight-disk lanes with partial and several loads).
+void test_every_isa_equals_base() {
+    const double zero[3] = {0, 0, 0};
+    const std::vector<Isa> isas = available_isas();
+    CHECK(!isas.empty() && isas[0] == Isa::Base, "available_isas starts with base");
+    std::printf("core_tests: kernels checked against base:");
+    for (Isa isa : isas) std::printf(" %s", isa_name(isa));
+    std::printf(" (best %s)\n", isa_name(best_isa()));
+    for (int seed = 0; seed < 4; ++seed) {
+        std::mt19937_64 g(7000 + seed);
+        Cloud cl = random_sphere_cloud(g, seed < 2 ? 500 : 3000, 1.0, zero);
+        for (uint32_t leaf : {1u, 8u, 31u}) {
+            auto tree = build(cl, leaf, seed % 2 ? 4 : 0);
+            auto rays = random_rays(g, 400, zero, 4.0, 1.2);
+            const size_t n = rays.size() / 6;
+            std::vector<float> tmax(n);
+            for (size_t i = 0; i < n; ++i) tmax[i] = float(1.0 + 3.0 * double(i % 7) / 7.0);
+            for (int variant = 0; variant < 4; ++variant) {
+                TraceOptions o;
+                o.lod = variant >= 2;
+                o.cull = variant % 2 == 1;
+                o.slabs = variant != 1;
+                o.interp = variant == 0 ? Interpolation::None : Interpolation::Smooth;
+                o.box_depth = seed % 2 ? 4 : 0;
+                const float pa = o.lod ? 0.01f : 0.f;
+                struct Result {
+                    std::vector<float> t, nrm, col, rad;
+                    std::vector<int32_t> idx;
+                    std::vector<uint8_t> cnt, occ;
+                    BatchStats cs, os;
+                };
+                auto run = [&](Isa isa) {
+                    Result r;
+                    r.t.resize(n); r.nrm.resize(3 * n); r.col.resize(3 * n); r.rad.resize(n);
+                    r.idx.resize(n); r.cnt.resize(n); r.occ.resize(n);
+                    TraceOptions oi = o;
+                    oi.isa = isa;
+                    CastOutput out{r.t.data(), r.nrm.data(), r.col.data(), r.rad.data(),
+                                   r.idx.data(), r.cnt.data()};
+                    cast(*tree, rays.data(), n, oi, pa, 2, out, &r.cs);
+                    any_hits(*tree, rays.data(), tmax.data(), n, oi, 0.f, pa, 2, r.occ.data(), &r.os);
+                    return r;
+                };
+                const Result base = run(Isa::Base);
+                for (Isa isa : isas) {
+                    if (isa == Isa::Base) continue;
+                    const Result r = run(isa);
+                    auto same = [](const auto &a, const auto &b) {
+                        return a.size() == b.size() &&
+                               std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+                    };
+                    const bool ok = same(r.t, base.t) && same(r.nrm, base.nrm) &&
+                                    same(r.col, base.col) && same(r.rad, base.rad) &&
+                                    same(r.idx, base.idx) && same(r.cnt, base.cnt) &&
+                                    same(r.occ, base.occ) && r.cs.nodes == base.cs.nodes &&
+                                    r.cs.disks == base.cs.disks && r.cs.hits == base.cs.hits &&
+                                    r.os.nodes == base.os.nodes && r.os.hits == base.os.hits;
+                    CHECK(ok, "isa %s differs from base: seed %d leaf %u variant %d", isa_name(isa),
+                          seed, leaf, variant);
+                }
+            }
+        }
+    }
+    bool threw = false;
+    try {
+        TraceOptions o;
+        o.isa = Isa(200);
+        query_kernels(o.isa);
+    } catch (const std::invalid_argument &) {
+        threw = true;
+    }
+    CHECK(threw, "an unknown instruction set is refused");
+}
+
 void test_one_surfel() {
     Cloud cl;
     cl.add(1.0, 2.0, 3.0, 0, 0, 1, 0.5f);
@@ -431,6 +510,116 @@ void test_lod_and_interpolation_are_clean() {
         }
 }
 
+void test_lod_budget() {
+    // The byte in the radius: the stored radius still bounds, the byte reads back.
+    for (float r : {0.f, 1e-30f, 1e-7f, 0.37f, 1.f, 3.9e5f, 1e30f})
+        for (uint32_t b : {0u, 1u, 17u, 255u}) {
+            Node nd{};
+            nd.radius = radius_with_byte(r, b);
+            CHECK(nd.radius >= r && nd.radius <= r * (1.f + 1e-4f) + 1e-37f,
+                  "radius_with_byte(%g, %u) = %g", r, b, nd.radius);
+            float want = (float(b) / 255.f) * (float(b) / 255.f) * kColourSpreadMax;
+            CHECK(nd.colour_spread() == want, "byte %u reads %g", b, nd.colour_spread());
+        }
+    for (float r : {std::numeric_limits<float>::infinity(), std::nanf("")}) {
+        float out = radius_with_byte(r, 7);
+        CHECK(std::isinf(r) ? out == r : std::isnan(out), "non-finite radius %g -> %g", r, out);
+    }
+    // Quantised colour spread never below the truth, within one step above it.
+    for (float c = 0.f; c <= 1.f; c += 0.0013f) {
+        uint32_t q = quantize_colour_spread(c);
+        float back = (float(q) / 255.f) * (float(q) / 255.f);
+        float step = (float(q + 1) / 255.f) * (float(q + 1) / 255.f) - back;
+        CHECK(q <= 255 && back >= c * (1.f - 1e-6f) && back - c <= step + 1e-6f,
+              "colour spread %g -> q %u -> %g", c, q, back);
+    }
+    CHECK(quantize_colour_spread(std::nanf("")) == 0 && quantize_colour_spread(-1.f) == 0 &&
+          quantize_colour_spread(1e9f) == 255, "colour spread: bad inputs");
+
+    // Tree nodes: colour spread bounds the brute-force RMS colour deviation of each subtree.
+    std::mt19937_64 g(67);
+    const double zero[3] = {0, 0, 0};
+    Cloud cl = random_sphere_cloud(g, 2000, 1.0, zero);
+    std::uniform_real_distribution<float> u01(0.f, 1.f);
+    for (size_t i = 0; i < cl.size(); ++i)  // half the sphere grey, half random colours
+        for (int k = 0; k < 3; ++k) cl.c[3 * i + k] = cl.p[3 * i] > 0 ? 0.5f : u01(g);
+    auto tree = build(cl, 8, 4);
+    const auto &nodes = tree->nodes();
+    const auto &surfels = tree->surfels();
+    // subtree ranges, bottom-up (children after parents)
+    std::vector<uint32_t> lo(nodes.size()), hi(nodes.size());
+    for (size_t i = nodes.size(); i-- > 0;) {
+        const Node &nd = nodes[i];
+        if (nd.is_leaf()) lo[i] = nd.index(), hi[i] = nd.index() + nd.count();
+        else lo[i] = lo[nd.index()], hi[i] = hi[nd.index() + 1];
+    }
+    size_t grey = 0;
+    for (size_t i = 0; i < nodes.size(); ++i) {
+        double m[3] = {0, 0, 0}, ss = 0;
+        const double cnt = double(hi[i] - lo[i]);
+        for (uint32_t k = lo[i]; k < hi[i]; ++k)
+            for (int c = 0; c < 3; ++c) m[c] += channel(surfels[k].rgba, c) / cnt;
+        for (uint32_t k = lo[i]; k < hi[i]; ++k)
+            for (int c = 0; c < 3; ++c) ss += std::pow(channel(surfels[k].rgba, c) - m[c], 2) / cnt;
+        const double rms = std::sqrt(ss);
+        CHECK(nodes[i].colour_spread() >= rms * (1 - 1e-4) - 1e-6,
+              "node %zu: colour spread %g below the subtree's %g", i, nodes[i].colour_spread(), rms);
+        if (rms < 1e-6) {
+            ++grey;
+            CHECK(nodes[i].colour_spread() < 1e-4f, "grey node %zu: %g", i, nodes[i].colour_spread());
+        }
+        float rmax = 0.f;
+        for (uint32_t k = lo[i]; k < hi[i]; ++k)
+            rmax = std::max(rmax, length(surfels[k].p - nodes[i].c) + surfels[k].r);
+        CHECK(nodes[i].radius >= rmax, "node %zu: radius %g below %g", i, nodes[i].radius, rmax);
+    }
+    CHECK(grey > 0, "no uniformly coloured node in the test tree");
+
+    // The budget: 0 never stops; a flat grey node within the extent stops; too wide never.
+    Node flat{};
+    flat.radius = radius_with_byte(1.f, 0);
+    flat.cone_q = uint16_t(std::ceil(kConeSlack * kConeScale));
+    CHECK(!budget_allows(flat, 1.f, 0.f, 1.f), "budget 0 stopped a node");
+    CHECK(budget_allows(flat, 1.f, 0.005f, 0.f), "budget 0.005 refused a flat grey node");
+    CHECK(!budget_allows(flat, 2.f / (kBudgetMaxExtent * 1.01f), 1.f, 0.f), "stopped beyond the extent");
+    Node striped = flat;
+    striped.radius = radius_with_byte(1.f, 60);
+    CHECK(!budget_allows(striped, 10.f, 0.005f, 1.f), "colour-spread node stopped by the size share");
+
+    // Rays through the budget traversal stay clean (finite, unit normals, in range); with
+    // max_error 0 they equal full detail exactly.
+    auto rays = random_rays(g, 400, zero, 5.0, 1.0);
+    const size_t n = rays.size() / 6;
+    std::vector<float> t(n), nrm(3 * n), col(3 * n), rad(n), t0(n), nrm0(3 * n), col0(3 * n), rad0(n);
+    std::vector<int32_t> idx(n), idx0(n);
+    std::vector<uint8_t> cnt(n), cnt0(n);
+    TraceOptions full;
+    full.lod = false;
+    CastOutput out0{t0.data(), nrm0.data(), col0.data(), rad0.data(), idx0.data(), cnt0.data()};
+    cast(*tree, rays.data(), n, full, 0.01f, 2, out0, nullptr);
+    for (float e : {0.f, 0.005f, 0.05f}) {
+        TraceOptions o;
+        o.lod_criterion = LodCriterion::Budget;
+        o.max_error = e;
+        o.lod_pixels = e > 0.f ? 1.f : 0.f;  // what pointviz.surfels gives the size share
+        CastOutput out{t.data(), nrm.data(), col.data(), rad.data(), idx.data(), cnt.data()};
+        cast(*tree, rays.data(), n, o, 0.05f, 2, out, nullptr);
+        for (size_t i = 0; i < n; ++i) {
+            if (e == 0.f) {
+                CHECK((std::isinf(t[i]) && std::isinf(t0[i])) || (t[i] == t0[i] && idx[i] == idx0[i]),
+                      "budget 0 [%zu]: t %g vs %g", i, t[i], t0[i]);
+                continue;
+            }
+            if (std::isinf(t[i])) continue;
+            float nl = std::sqrt(nrm[3 * i] * nrm[3 * i] + nrm[3 * i + 1] * nrm[3 * i + 1] +
+                                 nrm[3 * i + 2] * nrm[3 * i + 2]);
+            CHECK(t[i] >= 0.f && t[i] < 10.f && std::fabs(nl - 1.f) < 1e-3f &&
+                  idx[i] >= -2 && idx[i] < int32_t(cl.size()), "budget %g [%zu]: t %g |n| %g", e, i,
+                  t[i], nl);
+        }
+    }
+}
+
 /// A geometry that cancels the render from inside its first query: the cancel lands while
 /// every worker is mid-tile (what Ctrl-C does), deterministically.
 class CancellingGeometry final : public Geometry {
@@ -596,10 +785,12 @@ int main() {
     test_duplicates();
     test_line_and_plane();
     test_random_clouds_match_brute_force();
+    test_every_isa_equals_base();
     test_offset_precision();
     test_scales();
     test_degenerate_rays_and_surfels();
     test_lod_and_interpolation_are_clean();
+    test_lod_budget();
     test_render();
     test_empty_and_oversized_builds_throw();
     std::printf("core_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);

@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "pointviz/dispatch.h"
 #include "pointviz/trace.h"
 
 namespace pointviz {
@@ -26,29 +27,20 @@ public:
 class SurfelGeometry final : public Geometry {
 public:
     SurfelGeometry(const SurfelTree *tree, const TraceOptions &opt, Vec3 offset)
-        : tree_(tree), opt_(opt), offset_(offset) {}
+        : tree_(tree), opt_(opt), offset_(offset), kernels_(query_kernels(opt.isa)) {}
 
     void intersect(const Ray *rays, size_t n, SurfaceHit *hits) const override {
-        for (size_t i = 0; i < n; ++i) {
-            Ray r = rays[i];
-            r.o += offset_;
-            NoStats ns;
-            closest_hit(*tree_, r, opt_, hits[i], ns);
-        }
+        kernels_.intersect(*tree_, rays, n, offset_, opt_, hits);
     }
     void occluded(const Ray *rays, size_t n, uint8_t *hit) const override {
-        for (size_t i = 0; i < n; ++i) {
-            Ray r = rays[i];
-            r.o += offset_;
-            NoStats ns;
-            hit[i] = any_hit(*tree_, r, opt_, false, ns);
-        }
+        kernels_.occlude(*tree_, rays, n, offset_, opt_, hit);
     }
 
 private:
     const SurfelTree *tree_;
     TraceOptions opt_;
     Vec3 offset_;
+    const QueryKernels &kernels_;  ///< chosen once, at construction (dispatch.h)
 };
 
 }  // namespace pointviz

@@ -1,27 +1,34 @@
-// pointviz — the disks of one leaf tested eight at a time (AVX2). A surfel is exactly eight
-// floats, so eight of them load as the rows of an 8x8 block whose transpose is the
-// structure-of-arrays the vector test needs. Without AVX2 the scalar loop in trace.h is used.
+// pointviz — the disks of one leaf (up to eight) tested at once: eight lanes with AVX2, twice four
+// with SSE2 (the base and SSE4.2 kernels, dispatch.h). A surfel is exactly eight floats, so the
+// leaf loads as the rows of an 8x8 block (or two 4x4 blocks per four surfels) whose transpose is
+// the structure-of-arrays the disk kernel (disk_kernel.h) takes. Without SIMD (POINTVIZ_NO_SIMD)
+// the same kernel runs one disk at a time (trace.h).
 #pragma once
 
 #include <cstdint>
 
+#include "pointviz/disk_kernel.h"
+#include "pointviz/isa.h"
+#include "pointviz/simd.h"
 #include "pointviz/surfel.h"
 
-#if defined(__AVX2__)
-#include <immintrin.h>
+#if defined(POINTVIZ_AVX2) || defined(POINTVIZ_SSE2)
 #define POINTVIZ_LEAF_SIMD 1
 #endif
 
 namespace pointviz {
+POINTVIZ_ISA_BEGIN
 
 #if defined(POINTVIZ_LEAF_SIMD)
 
 /// Results of up to eight ray–disk tests: a bit per disk hit, and each lane's t, (d/r)^2 and
-/// facing. Same rejections as intersect_disk (culling, parallel rays, t-interval, radius).
+/// facing: disk_lanes (disk_kernel.h) on eight lanes.
 struct LeafHits {
     uint32_t mask;
     alignas(32) float t[8], u2[8], facing[8];
 };
+
+#if defined(POINTVIZ_AVX2)
 
 inline void transpose8(__m256 &r0, __m256 &r1, __m256 &r2, __m256 &r3, __m256 &r4, __m256 &r5,
                        __m256 &r6, __m256 &r7) {
@@ -56,35 +63,49 @@ inline void intersect_leaf8(const Ray &ray, const Surfel *first, uint32_t count,
     for (uint32_t k = 0; k < 8; ++k)  // lanes past the leaf repeat its first surfel (masked)
         *rows[k] = _mm256_loadu_ps(base + 8 * (k < count ? k : 0));
     transpose8(px, py, pz, rr, nx, ny, nz, col);
-    const __m256 dx = _mm256_set1_ps(ray.d.x), dy = _mm256_set1_ps(ray.d.y),
-                 dz = _mm256_set1_ps(ray.d.z);
-    const __m256 ox = _mm256_set1_ps(ray.o.x), oy = _mm256_set1_ps(ray.o.y),
-                 oz = _mm256_set1_ps(ray.o.z);
-    __m256 facing = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(nx, dx), _mm256_mul_ps(ny, dy)),
-                                  _mm256_mul_ps(nz, dz));
-    __m256 pox = _mm256_sub_ps(px, ox), poy = _mm256_sub_ps(py, oy), poz = _mm256_sub_ps(pz, oz);
-    __m256 num = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(pox, nx), _mm256_mul_ps(poy, ny)),
-                               _mm256_mul_ps(poz, nz));
-    __m256 t = _mm256_div_ps(num, facing);
-    __m256 qx = _mm256_sub_ps(_mm256_mul_ps(dx, t), pox);
-    __m256 qy = _mm256_sub_ps(_mm256_mul_ps(dy, t), poy);
-    __m256 qz = _mm256_sub_ps(_mm256_mul_ps(dz, t), poz);
-    __m256 q2 = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(qx, qx), _mm256_mul_ps(qy, qy)),
-                              _mm256_mul_ps(qz, qz));
-    __m256 r2 = _mm256_mul_ps(rr, rr);
-    const __m256 abs_mask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-    __m256 ok = _mm256_cmp_ps(_mm256_and_ps(facing, abs_mask), _mm256_set1_ps(kParallelCos), _CMP_GE_OQ);
-    if (cull) ok = _mm256_and_ps(ok, _mm256_cmp_ps(facing, _mm256_setzero_ps(), _CMP_LE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(t, _mm256_set1_ps(ray.tmin), _CMP_GE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(t, _mm256_set1_ps(tmax), _CMP_LE_OQ));
-    ok = _mm256_and_ps(ok, _mm256_cmp_ps(q2, r2, _CMP_LE_OQ));
-    out.mask = uint32_t(_mm256_movemask_ps(ok)) & ((1u << count) - 1u);
+    F8 t, u2, facing;
+    const F8 ok = disk_lanes<F8>(F8(px), F8(py), F8(pz), F8(rr), F8(nx), F8(ny), F8(nz), ray, tmax,
+                                 cull, t, u2, facing);
+    out.mask = movemask(ok) & ((1u << count) - 1u);
     if (out.mask == 0) return;
-    _mm256_store_ps(out.t, t);
-    _mm256_store_ps(out.u2, _mm256_div_ps(q2, r2));
-    _mm256_store_ps(out.facing, facing);
+    t.store(out.t);
+    u2.store(out.u2);
+    facing.store(out.facing);
 }
+
+#else  // SSE2: the leaf as two groups of four lanes
+
+/// Tests `ray` against surfels [first, first + count), count in 1..8. A surfel's two halves,
+/// (p, r) and (n, rgba), load as rows of two 4x4 blocks whose transposes are the lanes.
+inline void intersect_leaf8(const Ray &ray, const Surfel *first, uint32_t count, float tmax,
+                            bool cull, LeafHits &out) {
+    const float *base = reinterpret_cast<const float *>(first);
+    out.mask = 0;
+    for (uint32_t g = 0; g < count; g += 4) {
+        __m128 a[4], n[4];
+        for (uint32_t k = 0; k < 4; ++k) {  // lanes past the leaf repeat its first surfel (masked)
+            const float *s = base + 8 * (g + k < count ? g + k : 0);
+            a[k] = _mm_loadu_ps(s);
+            n[k] = _mm_loadu_ps(s + 4);
+        }
+        _MM_TRANSPOSE4_PS(a[0], a[1], a[2], a[3]);
+        _MM_TRANSPOSE4_PS(n[0], n[1], n[2], n[3]);
+        F4 t, u2, facing;
+        const F4 ok = disk_lanes<F4>(F4(a[0]), F4(a[1]), F4(a[2]), F4(a[3]), F4(n[0]), F4(n[1]),
+                                     F4(n[2]), ray, tmax, cull, t, u2, facing);
+        const uint32_t lanes = count - g < 4 ? count - g : 4;
+        const uint32_t m = movemask(ok) & ((1u << lanes) - 1u);
+        if (m == 0) continue;
+        out.mask |= m << g;
+        t.store(out.t + g);
+        u2.store(out.u2 + g);
+        facing.store(out.facing + g);
+    }
+}
+
+#endif  // POINTVIZ_AVX2
 
 #endif
 
+POINTVIZ_ISA_END
 }  // namespace pointviz

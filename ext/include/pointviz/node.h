@@ -3,7 +3,9 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <cstring>
 
 #include "pointviz/surfel.h"
 
@@ -13,9 +15,13 @@ namespace pointviz {
 /// rounding (under 3e-5 per component) is absorbed by kConeSlack.
 constexpr float kAxisScale = 32767.f;
 
+POINTVIZ_ISA_BEGIN
+
 inline int16_t quantize_axis(float v) {
     return int16_t(std::lround(std::clamp(v, -1.f, 1.f) * kAxisScale));
 }
+
+POINTVIZ_ISA_END
 
 /// Slack added to every cone's sine so that the 16-bit axis never makes culling unsafe.
 constexpr float kConeSlack = 1e-3f;
@@ -31,6 +37,32 @@ constexpr uint32_t kMaxTreeSurfels = 1u << 27;
 /// Slab value meaning "no slab": the node is not flat enough for one to help.
 constexpr uint32_t kNoSlab = 255;
 
+/// Colour spread (RMS deviation of the subtree's surfel colours from their mean, 0..1 units per
+/// channel, summed over RGB) is stored as q = ceil(255 sqrt(spread / kColourSpreadMax)): fine
+/// steps near 0, where the error budget decides (spread ~ 0.005), coarse ones where any budget
+/// refuses the node anyway. Decoding is (q / 255)^2 kColourSpreadMax, never below the truth.
+constexpr float kColourSpreadMax = 1.f;
+
+inline uint32_t quantize_colour_spread(float spread) {
+    if (!(spread > 0.f)) return 0;
+    const float q = std::ceil(std::sqrt(std::min(spread / kColourSpreadMax, 1.f)) * 255.f);
+    return uint32_t(std::min(q, 255.f));
+}
+
+/// The radius with its 8 low mantissa bits replaced by `byte`, never smaller than `radius`:
+/// the float is rounded up by 256 ulps (3e-5 relative) first, so that reading the stored bits
+/// as a plain float stays a conservative bounding radius and the hot path needs no mask.
+/// Non-finite radii are kept as they are (the byte reads as whatever their bits hold).
+inline float radius_with_byte(float radius, uint32_t byte) {
+    if (!std::isfinite(radius) || radius < 0.f) return radius;
+    uint32_t bits;
+    std::memcpy(&bits, &radius, 4);
+    bits = ((bits & ~0xffu) + 0x100u) | (byte & 0xffu);
+    float out;
+    std::memcpy(&out, &bits, 4);
+    return out;
+}
+
 /// One node of the tree. 32 bytes: a sibling pair fills one cache line.
 ///
 /// Interior node: `count() == 0`, children are `index()` and `index() + 1`.
@@ -41,7 +73,9 @@ constexpr uint32_t kNoSlab = 255;
 /// flat patches low in the tree, sphere and slab together are far tighter than the sphere alone.
 struct Node {
     Vec3 c;              ///< sphere centre = mean of the subtree's surfel centres (12 B)
-    float radius;        ///< bounding-sphere radius: max over the subtree of |p - c| + r (4 B)
+    float radius;        ///< bounding-sphere radius: max over the subtree of |p - c| + r, rounded
+                         ///< up; its 8 low mantissa bits hold the colour spread (4 B, see
+                         ///< radius_with_byte)
     int16_t axis_q[3];   ///< mean normal (cone axis), x kAxisScale (6 B)
     uint16_t cone_q;     ///< sin of the cone's half-angle + slack, x kConeScale; kConeNeverQ if > 90 deg (2 B)
     uint32_t rgb_slab;   ///< mean colour (24 bits, red low) | slab half-width in radius/255 << 24 (4 B)
@@ -61,6 +95,13 @@ struct Node {
     bool is_leaf() const { return count() != 0; }
     uint32_t rgba() const { return (rgb_slab & 0xffffffu) | 0xff000000u; }
     uint32_t slab_q() const { return rgb_slab >> 24; }
+    /// Upper bound of the RMS colour deviation of the subtree (0..1 per channel, RGB summed).
+    float colour_spread() const {
+        uint32_t bits;
+        std::memcpy(&bits, &radius, 4);
+        const float q = float(bits & 0xffu) * (1.f / 255.f);
+        return q * q * kColourSpreadMax;
+    }
     /// Half-width of the slab around the mean plane (along axis()).
     float slab_half_width() const { return float(slab_q()) * (1.f / 255.f) * radius; }
 };
@@ -71,6 +112,8 @@ struct Box {
     Vec3 lo, hi;
 };
 static_assert(sizeof(Box) == 24, "Box is a 24-byte contract");
+
+POINTVIZ_ISA_BEGIN
 
 /// Slab test. Returns the entry parameter, or +inf if the ray misses [tmin, tmax].
 inline float enter_box(const Box &b, Vec3 o, Vec3 inv_d, float tmin, float tmax) {
@@ -122,5 +165,7 @@ inline float enter_sphere_slab(const Node &nd, Vec3 o, Vec3 d, float tmin, float
     }
     return t0 <= t1 ? t0 : kInf;
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

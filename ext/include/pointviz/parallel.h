@@ -6,9 +6,18 @@
 #include <atomic>
 #include <cstddef>
 #include <thread>
-#include <vector>
+
+#include "pointviz/isa.h"
 
 namespace pointviz {
+
+/// Runs `fn(ctx, w)` for w = 1 .. workers - 1 on new threads and `fn(ctx, 0)` on the calling
+/// one, then joins them. Compiled once (parallel.cpp), outside the per-instruction-set kernels
+/// (isa.h), which is why it takes a plain function pointer: no library template (std::vector,
+/// std::thread) is instantiated in both.
+void run_workers(int workers, void (*fn)(void *ctx, int worker), void *ctx);
+
+POINTVIZ_ISA_BEGIN
 
 /// Number of worker threads for a request: `requested` if positive, else all cores.
 inline int resolve_threads(int requested) {
@@ -42,11 +51,9 @@ void parallel_for(size_t n, size_t grain, int threads, Fn &&fn,
         run(0);
         return;
     }
-    std::vector<std::thread> pool;
-    pool.reserve(size_t(workers - 1));
-    for (int w = 1; w < workers; ++w) pool.emplace_back(run, w);
-    run(0);
-    for (auto &t : pool) t.join();
+    run_workers(workers, [](void *ctx, int w) { (*static_cast<decltype(run) *>(ctx))(w); }, &run);
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

@@ -99,7 +99,20 @@ struct RenderSettings {
     int reflections = 1;         ///< reflection bounces
     bool shadows = true;
     float lod_pixels = 1.f;      ///< 0: full detail
+    /// Whether ray offsets grow with the pixel footprint (see OffsetPolicy): needed by the size
+    /// rule, whose LoD disks reach a footprint and whose secondary rays stop at any node that
+    /// small. The error budget turns it off: its secondary rays stop only at flat nodes, and the
+    /// hit radius already covers a LoD disk, so its frames keep full detail's offsets (the
+    /// footprint-sized offsets alone cost up to 0.03 mean FLIP in sky occlusion at 7.5x).
+    bool footprint_offsets = true;
     uint64_t seed = 0;
+    /// Progressive rendering: this render traces samples `sample_offset .. sample_offset+spp-1`
+    /// of a pixel's sample sequence, so that the mean of renders with offsets 0, spp, 2 spp, ...
+    /// is the render with all those samples at once (same seed).
+    uint32_t sample_offset = 0;
+    /// Samples per pixel of the whole sequence this render is part of (0: `spp`). A sequence of
+    /// one sample uses pixel centres; longer ones jitter every sample, the first one included.
+    uint32_t sequence_spp = 0;
     int threads = 0;
     int tile = 16;               ///< tile edge in pixels
     int occlusion_rays = 2;      ///< sky-visibility rays per camera sample (1 on reflections)

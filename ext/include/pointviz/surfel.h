@@ -1,8 +1,9 @@
-// pointviz — the surfel (an oriented disk) and the ray–disk test.
+// pointviz — the surfel (an oriented disk). The ray–disk test is disk_kernel.h.
 #pragma once
 
 #include <cstdint>
 
+#include "pointviz/isa.h"
 #include "pointviz/ray.h"
 
 namespace pointviz {
@@ -27,22 +28,7 @@ struct DiskHit {
     float u2;      ///< (distance from the centre / radius)^2, in [0, 1]
 };
 
-/// Oriented-disk intersection. Cheapest rejection first: culling and parallel rays, then the
-/// t-interval, then the radius. `facing` is dot(d, n); with `cull`, disks facing away from the
-/// ray (facing > 0) are skipped before any division.
-inline bool intersect_disk(const Ray &ray, Vec3 p, Vec3 n, float r, float tmax, bool cull,
-                           float &facing, DiskHit &hit) {
-    facing = dot(ray.d, n);
-    if (cull && facing > 0.f) return false;
-    if (std::fabs(facing) < kParallelCos) return false;
-    float t = dot(p - ray.o, n) / facing;
-    if (!(t >= ray.tmin && t <= tmax)) return false;
-    Vec3 q = ray.o + ray.d * t - p;
-    float u2 = length2(q) / (r * r);
-    if (!(u2 <= 1.f)) return false;
-    hit = {t, u2};
-    return true;
-}
+POINTVIZ_ISA_BEGIN
 
 /// 8-bit colour channel `c` (0..2) of a packed RGBA value, as a float in [0, 1].
 inline float channel(uint32_t rgba, int c) { return float((rgba >> (8 * c)) & 0xffu) * (1.f / 255.f); }
@@ -55,5 +41,7 @@ inline uint32_t pack_rgb(float r, float g, float b) {
     };
     return q(r) | (q(g) << 8) | (q(b) << 16) | (0xffu << 24);
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

@@ -8,7 +8,10 @@
 #include <algorithm>
 #include <cstdint>
 
+#include "pointviz/disk_kernel.h"
+#include "pointviz/isa.h"
 #include "pointviz/leaf_simd.h"
+#include "pointviz/lod.h"
 #include "pointviz/tree.h"
 
 namespace pointviz {
@@ -25,6 +28,9 @@ enum class LodCriterion : uint8_t {
     Size = 0,       ///< the paper's: the node's sphere diameter projects below lod_pixels
     Deviation = 1,  ///< the node's deviation from its mean plane (diameter x sin of the normal
                     ///< cone's half-angle) projects below lod_pixels: flat nodes stop earlier
+    Budget = 2,     ///< the error budget (lod.h): nodes whose predicted error fits in max_error
+                    ///< stop, and so do nodes below lod_pixels footprints (the size rule, which
+                    ///< the caller scales with the budget; 0 turns it off)
 };
 
 /// Knobs of one traversal; the paper's variants are combinations of these.
@@ -38,11 +44,23 @@ struct TraceOptions {
     float window = 1.f;       ///< depth window, in radii of the nearest disk, measured along its normal
     LodCriterion lod_criterion = LodCriterion::Size;
     float lod_max_extent = 8.f;  ///< Deviation only: never stop at nodes wider than this many footprints
+    float max_error = 0.f;       ///< Budget only: mean FLIP the frame may lose to LoD (lod.h)
+    Isa isa = Isa::Auto;      ///< kernels of the batch queries (dispatch.h); all give the same results
 };
+
+POINTVIZ_ISA_BEGIN
 
 /// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
 inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOptions &opt) {
-    const float size = 2.f * nd.radius, fp = opt.lod_pixels * ray.footprint(t2);
+    const float size = 2.f * nd.radius;
+    if (opt.lod_criterion == LodCriterion::Budget) {
+        // Secondary rays (they start with a width) skip the size rule's share: its nodes may
+        // tilt by anything, and one at the ray's origin would shadow the surface it leaves. The
+        // budget's own nodes deviate from their plane by under 1 % of their size.
+        return budget_allows(nd, ray.footprint(t2), opt.max_error,
+                             ray.width0 > 0.f ? 0.f : opt.lod_pixels);
+    }
+    const float fp = opt.lod_pixels * ray.footprint(t2);
     if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
     // A node's disk stands in for a curved patch badly in proportion to its normal spread;
     // kFlatFloor keeps a perfectly flat node from counting as zero deviation.
@@ -50,6 +68,8 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
     const float spread = std::min(1.f, std::max(nd.cone(), kFlatFloor));
     return size * spread <= fp && size <= opt.lod_max_extent * fp;
 }
+
+POINTVIZ_ISA_END
 
 /// What a closest-hit query returns.
 struct SurfaceHit {
@@ -60,6 +80,8 @@ struct SurfaceHit {
     int32_t index = -1;    ///< nearest surfel (tree order); -2 when it was a LoD node disk; -1 miss
     uint32_t count = 0;    ///< how many disks were blended
 };
+
+POINTVIZ_ISA_BEGIN
 
 /// Statistics hook that counts nothing (the fast path).
 struct NoStats {
@@ -180,7 +202,9 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     const auto &nodes = tree.nodes();
     const auto &surfels = tree.surfels();
     const Vec3 inv_d{1.f / ray.d.x, 1.f / ray.d.y, 1.f / ray.d.z};
-    const bool lod = opt.lod && ray.spread > 0.f;
+    // A footprint that does not grow (width0 > 0, spread 0: a shadow ray toward a hard light)
+    // still takes LoD: what matters is the beam's width where the node is.
+    const bool lod = opt.lod && (ray.spread > 0.f || ray.width0 > 0.f);
     const uint32_t box_depth = opt.box_depth;
 
     StackEntry stack[kStackSize];
@@ -205,10 +229,14 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
         if (skip) {
         } else if (nd.is_leaf()) {
             uint32_t b = nd.index(), cnt = nd.count();
+            // Every disk of a leaf is tested against the far bound at the leaf's start, as the
+            // eight-lane test does, so that both give the same hits (the closest-hit bound can
+            // grow when a nearer disk with a wider window arrives).
+            const float leaf_tfar = policy.tfar();
 #if defined(POINTVIZ_LEAF_SIMD)
             if (cnt <= 8) {
                 LeafHits lh;
-                intersect_leaf8(ray, &surfels[b], cnt, policy.tfar(), sub_cull, lh);
+                intersect_leaf8(ray, &surfels[b], cnt, leaf_tfar, sub_cull, lh);
                 for (uint32_t k = 0; k < cnt; ++k) stats.disk();
                 for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
                     uint32_t k = uint32_t(__builtin_ctz(m));
@@ -222,7 +250,7 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
                 stats.disk();
                 float facing;
                 DiskHit h;
-                if (!intersect_disk(ray, s.p, s.n, s.r, policy.tfar(), sub_cull, facing, h)) continue;
+                if (!intersect_disk(ray, s.p, s.n, s.r, leaf_tfar, sub_cull, facing, h)) continue;
                 if (policy.add({h.t, h.u2, facing, s.r, k})) return;
             }
         } else {
@@ -348,5 +376,7 @@ bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bo
     traverse(tree, ray, opt, cull, a, stats);
     return a.hit;
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

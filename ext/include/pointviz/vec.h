@@ -1,6 +1,8 @@
 // pointviz — small fixed-size vector math used by every other header.
 #pragma once
 
+#include "pointviz/isa.h"
+
 #include <cmath>
 #include <cstdint>
 
@@ -16,6 +18,8 @@ struct Vec3 {
     float operator[](int i) const { return i == 0 ? x : (i == 1 ? y : z); }
     float &operator[](int i) { return i == 0 ? x : (i == 1 ? y : z); }
 };
+
+POINTVIZ_ISA_BEGIN
 
 inline Vec3 operator+(Vec3 a, Vec3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
 inline Vec3 operator-(Vec3 a, Vec3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
@@ -57,5 +61,7 @@ inline void make_basis(Vec3 n, Vec3 &t, Vec3 &b) {
     t = {1.f + sign * n.x * n.x * a, sign * c, -sign * n.x};
     b = {c, sign + n.y * n.y * a, -n.y};
 }
+
+POINTVIZ_ISA_END
 
 }  // namespace pointviz

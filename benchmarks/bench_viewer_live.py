@@ -1,0 +1,190 @@
+"""The live viewport (issue 17): frame rate while the camera orbits, samples after it stops.
+
+Opens ``pointviz.view(live=True, orbit=SECONDS)`` in a subprocess on 1M surfels sampled from
+Armadillo.ply over a mirror ground (the scene of benchmarks/bench_frame.py) with a 640x480
+viewport, and reads the report: ``live_fps`` (ray-traced frames shown per second while the camera
+moves), ``live_resolution`` (mean fraction of the viewport's pixels traced per moving frame),
+``still_spp`` (samples per pixel 3 s after the camera stopped) and ``preview_fps`` (the splat
+preview's own rate). A driver thread meanwhile times GUI-thread round trips (``viewer.call``)
+during the live orbit and hold. Anchors, measured in the same run and interleaved with the
+viewer runs: a bare loop of ``render()`` calls on the same built scene (1 spp, shadows, one
+reflection, all cores) at 640x480 and at 320x240 (1/4 of the pixels). Targets: live_fps >= 8 at
+live_resolution >= 1/4, still_spp >= 16.
+
+Run under a display: ``xvfb-run -a -s "-screen 0 1800x1000x24" python
+benchmarks/bench_viewer_live.py [--rounds 2] [--orbit 6]``. Writes
+benchmarks/results/viewer/live.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import common  # noqa: E402
+
+SIZE = 1_000_000
+WIDTH, HEIGHT = 640, 480
+#: The issue's targets.
+TARGET_FPS = 8.0
+TARGET_RESOLUTION = 0.25
+TARGET_STILL_SPP = 16
+#: Seconds of bare render() calls per anchor measurement.
+ANCHOR_SECONDS = 4.0
+#: Spacing of the GUI round trips timed during the live orbit, seconds.
+CALL_SPACING_S = 0.05
+
+SCENE = """
+import sys
+sys.path.insert(0, {here!r})
+import paper_figures as pf
+import pointviz
+from pathlib import Path
+model = pf.armadillo(Path({data!r}), {n})
+scene = pointviz.Scene(model.cloud, ground="mirror")
+"""
+
+VIEWER = SCENE + """
+import json, threading, time, traceback
+from pointviz.viewer import worker
+{setup}
+lat, res = [], {{}}
+
+def drive(v):
+    try:
+        while v.call(lambda: v.live_script is None or v.live_script.state != "orbit",
+                     timeout=600):
+            pass                                      # until the live orbit starts
+        while not v.closed:
+            t = time.perf_counter()
+            try:
+                state = v.call(lambda: v.live_script.state, timeout=30)
+            except TimeoutError:
+                state = "timeout"
+            if state in ("orbit", "hold", "timeout"):
+                lat.append(time.perf_counter() - t)
+            if state == "done" or v.closed:
+                break
+            time.sleep({spacing})
+    except BaseException:
+        if not v.closed:
+            res["error"] = traceback.format_exc()
+
+v = pointviz.view(scene, live=True, orbit={orbit}, width={w}, height={h}, threads={threads},
+                  report="report.json", overwrite=True,
+                  on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
+rep = json.load(open("report.json"))
+res.update({{k: rep.get(k) for k in ("live_fps", "live_resolution", "still_spp", "preview_fps")}})
+res["live"] = rep["live"]
+res["gui_latency_s"] = lat
+print("RESULT" + json.dumps(res))
+sys.stdout.flush()
+import os; os._exit(0)
+"""
+
+ANCHOR = SCENE + """
+import json, time
+res = {{}}
+for w, h in (({w}, {h}), ({w} // 2, {h} // 2)):
+    cam = pointviz.Camera.fit(model.cloud, width=w, height=h)
+    pointviz.render(scene, cam, spp=1, shadows=True, reflections=1)   # trees built, warm
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < {seconds}:
+        pointviz.render(scene, cam, spp=1, shadows=True, reflections=1)
+        n += 1
+    res[f"{{w}}x{{h}}"] = n / (time.perf_counter() - t0)
+print("RESULT" + json.dumps(res))
+"""
+
+#: Viewer variants: (name, tracer threads: 0 = all cores, -1 = all but one; setup code).
+VARIANTS = (("nice, all cores", 0, ""), ("nice, cores-1", -1, ""))
+
+
+def run_script(script: str, cwd: Path, env=None) -> dict:
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=1800, check=False, cwd=cwd, env={**os.environ, **(env or {})})
+    lines = [x for x in out.stdout.splitlines() if x.startswith("RESULT")]
+    if not lines:
+        raise RuntimeError(f"run failed ({out.returncode}):\n{out.stderr[-3000:]}")
+    res = json.loads(lines[-1][len("RESULT"):])
+    if "error" in res:
+        raise RuntimeError(res["error"])
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=1, help="interleaved rounds")
+    ap.add_argument("--orbit", type=float, default=6.0, help="orbit seconds (default 6)")
+    ap.add_argument("--size", type=float, default=SIZE, help="surfels (default 1e6)")
+    ap.add_argument("--data", type=Path, default=common.default_data_dir())
+    ap.add_argument("--out", type=Path, default=HERE / "results" / "viewer" / "live.json")
+    args = ap.parse_args(argv)
+    if not os.environ.get("DISPLAY"):
+        print("bench_viewer_live: no X display; run it under xvfb-run -a", file=sys.stderr)
+        return 2
+    if not (args.data / common.ARMADILLO_MESH).exists():
+        print(f"SKIP: {args.data / common.ARMADILLO_MESH} not found")
+        return 0
+    n = int(args.size)
+    work = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_viewer_live_{os.getpid()}"
+    work.mkdir(parents=True, exist_ok=True)
+    cores = os.cpu_count() or 1
+    fmt = dict(here=str(HERE), data=str(args.data), n=n, w=WIDTH, h=HEIGHT)
+    rows, anchors = [], []
+    for _ in range(args.rounds):
+        anchors.append(run_script(ANCHOR.format(**fmt, seconds=ANCHOR_SECONDS), work))
+        print("anchor: bare render() loop", {k: round(v, 2) for k, v in anchors[-1].items()},
+              "fps", flush=True)
+        for name, threads, setup in VARIANTS:
+            t = cores if threads == 0 else max(1, cores + threads)
+            res = run_script(VIEWER.format(**fmt, setup=setup, spacing=CALL_SPACING_S,
+                                           orbit=args.orbit, threads=t), work)
+            lat = np.array(res.pop("gui_latency_s")) * 1e3
+            row = {"variant": name, "threads": t, **res,
+                   "gui_calls": len(lat),
+                   "gui_p95_ms": float(np.percentile(lat, 95)) if len(lat) else None,
+                   "gui_max_ms": float(lat.max()) if len(lat) else None,
+                   "load_average": os.getloadavg()[0]}
+            rows.append(row)
+            print(f"{name:16s} live_fps {row['live_fps']:.2f} at {row['live_resolution']:.2f} of "
+                  f"the pixels, still_spp {row['still_spp']}, preview_fps "
+                  f"{row['preview_fps']:.1f}, GUI calls p95 {row['gui_p95_ms']:.0f} ms max "
+                  f"{row['gui_max_ms']:.0f} ms, load {row['load_average']:.1f}", flush=True)
+    full = float(np.median([a[f"{WIDTH}x{HEIGHT}"] for a in anchors]))
+    quarter = float(np.median([a[f"{WIDTH // 2}x{HEIGHT // 2}"] for a in anchors]))
+    for r in rows:
+        r["fps_ratio_to_bare_quarter"] = r["live_fps"] / quarter
+        r["meets_targets"] = bool(r["live_fps"] >= TARGET_FPS
+                                  and r["live_resolution"] >= TARGET_RESOLUTION
+                                  and r["still_spp"] >= TARGET_STILL_SPP)
+    doc = {"benchmark": "viewer_live", "date": time.strftime("%Y-%m-%dT%H:%M:%S"),
+           "surfels": n, "viewport": [WIDTH, HEIGHT], "orbit_s": args.orbit, "cpu_count": cores,
+           "anchor_fps": {"full": full, "quarter": quarter, "runs": anchors},
+           "targets": {"live_fps": TARGET_FPS, "live_resolution": TARGET_RESOLUTION,
+                       "still_spp": TARGET_STILL_SPP}, "rows": rows}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(args.out)
+    print(f"\nanchor (bare render loop): {full:.2f} fps at {WIDTH}x{HEIGHT}, {quarter:.2f} fps "
+          f"at {WIDTH // 2}x{HEIGHT // 2}")
+    for r in rows:
+        print(f"{r['variant']:16s} live_fps {r['live_fps']:.2f} ({r['fps_ratio_to_bare_quarter']:.2f}x "
+              f"the bare 1/4-pixel loop) at {r['live_resolution']:.2f}, still_spp "
+              f"{r['still_spp']}, targets {'met' if r['meets_targets'] else 'NOT met'}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,448 @@
+"""The live viewport: a ray-traced view that follows a moving camera (worker thread side).
+
+While the camera moves, :class:`LiveRenderer` traces 1 sample per pixel at a reduced resolution
+chosen by :class:`ResolutionController` to keep a target frame rate; the GUI shows the frame
+upscaled to the viewport. Once the camera has held still for STILL_DELAY_S, it traces the full
+resolution in passes that continue one deterministic sample sequence (``render(sample_offset=,
+sequence_spp=)``), so the running mean converges to exactly the frame ``render(spp=N)`` makes;
+the mean is denoised from DENOISE_FIRST_SPP samples on, whenever the count has grown
+DENOISE_GROWTH times.
+
+A new camera cancels a still pass at once, and a moving frame once it has been stale for
+STALE_MOVING_S (stale frames are cancelled, not finished; a moving frame that is almost done is
+worth showing, else a camera that changes at every GUI tick would never see a frame). The GUI
+thread only calls :meth:`LiveRenderer.update` (a lock held for a few assignments, never while
+tracing) and receives :class:`LiveFrame` objects through ``on_frame``, called on the worker
+thread, which must only hand them over (``post_to_main_thread``). Nothing here knows a GUI.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import CancelledError
+
+#: Frame rate the moving view aims for (the issue's goal is 8; aiming a bit higher keeps the
+#: measured rate above it when the machine's load changes between frames).
+TARGET_FPS = 10.0
+#: Range of the fraction of the viewport's pixels traced while moving. Below 1/16 (a quarter of
+#: the resolution on each axis) the upscaled picture no longer shows the shape.
+MIN_PIXEL_FRACTION = 1.0 / 16.0
+MAX_PIXEL_FRACTION = 1.0
+#: Smoothing of the measured cost per pixel (exponential moving average weight of the newest
+#: frame): frame times on a shared machine jitter; one slow frame must not halve the resolution.
+COST_SMOOTHING = 0.3
+#: The camera counts as still once it has not changed for this long, seconds (GUI ticks deliver
+#: an orbiting camera several times per traced frame; a pause shorter than this is still motion).
+STILL_DELAY_S = 0.12
+#: Target duration of one accumulation pass while still, seconds: the picture refreshes about
+#: this often, and a camera move waits at most one tile, not one pass, so longer passes only
+#: cost refresh rate, while shorter ones pay the per-call overhead more often.
+STILL_PASS_S = 0.35
+#: Most samples per pixel of one accumulation pass, and of the whole accumulation.
+MAX_PASS_SPP = 16
+MAX_STILL_SPP = 1024
+#: Samples per pixel at which the still view is first denoised; then each time the count has
+#: grown DENOISE_GROWTH times. Denoising a 640x480 frame costs several passes' time (2.2 s
+#: "fast", 4.9 s "high" measured on the 2-core machine at load 11), all taken from the
+#: accumulation: early and frequent denoising would cut the samples reached 3 s after the
+#: camera stops several times over.
+DENOISE_FIRST_SPP = 16
+DENOISE_GROWTH = 4
+#: Open Image Denoise quality of the live view (the Render button's frame uses the settings').
+LIVE_DENOISE_QUALITY = "fast"
+#: Level-of-detail threshold while moving, pixels of the reduced frame (coarser than the still
+#: default: a moving picture hides the difference, and it is what makes low resolutions cheap).
+MOVING_LOD_PIXELS = 1.5
+#: A moving frame whose camera has been replaced is cancelled after tracing this long, seconds
+#: (twice the target frame time: an on-time frame finishes, a slow one is dropped).
+STALE_MOVING_S = 2.0 / TARGET_FPS
+#: How long :meth:`LiveRenderer.shutdown` waits for the thread by default, seconds.
+SHUTDOWN_TIMEOUT_S = 10.0
+
+
+class ResolutionController:
+    """Chooses the fraction of the viewport's pixels to trace so a frame takes 1 / target_fps.
+
+    It keeps a smoothed estimate of the seconds one frame costs per unit pixel fraction (the cost
+    of a frame is close to proportional to its pixel count) and inverts it.
+
+    Parameters
+    ----------
+    target_fps : float
+    lo, hi : float
+        Range of the fraction.
+    """
+
+    def __init__(self, target_fps: float = TARGET_FPS, lo: float = MIN_PIXEL_FRACTION,
+                 hi: float = MAX_PIXEL_FRACTION):
+        self.target_s = 1.0 / float(target_fps)
+        self.lo, self.hi = float(lo), float(hi)
+        self.cost_per_fraction: float | None = None
+        self.fraction = 0.25 * (lo + hi) if hi > 4 * lo else lo
+
+    def observe(self, fraction: float, seconds: float) -> float:
+        """Record that a frame of ``fraction`` took ``seconds``; return the next fraction."""
+        cost = seconds / max(fraction, 1e-9)
+        c = self.cost_per_fraction
+        self.cost_per_fraction = cost if c is None else (1 - COST_SMOOTHING) * c + COST_SMOOTHING * cost
+        self.fraction = float(np.clip(self.target_s / self.cost_per_fraction, self.lo, self.hi))
+        return self.fraction
+
+
+def scaled_camera(camera, fraction: float):
+    """``camera`` with about ``fraction`` of its pixels (same view: the vertical field of view and
+    the aspect are kept)."""
+    from ..camera import Camera
+
+    s = math.sqrt(max(fraction, 0.0))
+    w = max(1, round(camera.width * s))
+    h = max(1, round(camera.height * s))
+    if (w, h) == (camera.width, camera.height):
+        return camera
+    return Camera(camera.eye, camera.target, camera.up, camera.fov_deg, w, h)
+
+
+def orbit_camera(camera, center, up, angle_rad: float):
+    """``camera`` turned by ``angle_rad`` around the axis through ``center`` along ``up``
+    (Rodrigues' rotation of the eye and target; the up hint is the axis itself)."""
+    from ..camera import Camera
+
+    k = np.asarray(up, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    c = np.asarray(center, dtype=np.float64)
+    cos, sin = math.cos(angle_rad), math.sin(angle_rad)
+
+    def rot(p):
+        v = np.asarray(p, dtype=np.float64) - c
+        return c + v * cos + np.cross(k, v) * sin + k * (k @ v) * (1 - cos)
+
+    return Camera(rot(camera.eye), rot(camera.target), camera.up, camera.fov_deg,
+                  camera.width, camera.height)
+
+
+def same_camera(a, b) -> bool:
+    """Same eye, target, up, field of view and size (exact: a moved camera is a new view)."""
+    if a is None or b is None:
+        return a is b
+    return (a.width, a.height, a.fov_deg) == (b.width, b.height, b.fov_deg) and all(
+        np.array_equal(x, y) for x, y in ((a.eye, b.eye), (a.target, b.target), (a.up, b.up)))
+
+
+@dataclass
+class LiveFrame:
+    """A picture for the viewport.
+
+    Attributes
+    ----------
+    image : (h, w, 3) uint8
+        sRGB, the traced size (the GUI upscales it to the viewport).
+    frame : Frame
+        Linear buffers behind ``image``: while still, the running mean (``noisy_color``: before
+        denoising), so ``frame.color`` of an undenoised still frame equals ``render(spp=spp)``.
+    camera : Camera
+        The camera traced (reduced size while moving).
+    generation : int
+        The request it answers (:meth:`LiveRenderer.update` numbers them).
+    moving : bool
+        A 1-spp reduced-resolution frame (else a step of the still accumulation).
+    fraction : float
+        Fraction of the viewport's pixels traced.
+    spp : int
+        Samples per pixel in the picture.
+    denoised : bool
+    seconds : float
+        Trace time of this frame or pass.
+    """
+
+    image: np.ndarray
+    frame: object
+    camera: object
+    generation: int
+    moving: bool
+    fraction: float
+    spp: int
+    denoised: bool
+    seconds: float
+
+
+@dataclass
+class _Request:
+    camera: object
+    settings: object
+    generation: int
+    time: float = field(default_factory=time.monotonic)
+
+
+class LiveRenderer:
+    """Traces the live view on a daemon thread.
+
+    Parameters
+    ----------
+    on_frame : callable(LiveFrame)
+        Called on the worker thread for every finished frame or accumulation pass.
+    prepare : callable(settings) -> (scene, dict)
+        Called on the worker thread with the settings of a request: the scene to trace and the
+        :func:`pointviz.render` options (``spp`` and ``denoise`` are the live view's own). It may
+        be slow the first time (tree builds); its result is reused while the settings compare
+        equal.
+    on_error : callable(exception), optional
+        Called on the worker thread when a frame fails (not for cancellations); the loop goes on
+        with the next request.
+    render_fn : callable, optional
+        :func:`pointviz.render` (tests substitute a wrapper).
+    threads : int, optional
+        Tracer threads; default: all cores (see the viewer's worker module for the measurement).
+    background : bool
+        Trace at a lower CPU priority.
+    denoise : bool
+        Denoise the still view (needs the ``denoise`` extra; silently off without it).
+    target_fps : float
+    """
+
+    def __init__(self, on_frame, prepare, on_error=None, render_fn=None, threads=None,
+                 background=True, denoise=True, target_fps=TARGET_FPS):
+        self._on_frame = on_frame
+        self._prepare = prepare
+        self._prepared = None  # (settings, scene, kwargs) of the last request traced
+        self._on_error = on_error or (lambda exc: None)
+        self._render_fn = render_fn
+        self.threads = threads
+        self.background = background
+        self.denoise = denoise and _denoise_available()
+        self.controller = ResolutionController(target_fps)
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._request: _Request | None = None
+        self._generation = 0
+        self._stop = False
+        self.cancelled_frames = 0
+        self.moving_frames = 0
+        self.still_passes = 0
+        self._thread = threading.Thread(target=self._loop, name="pointviz-live", daemon=True)
+        self._thread.start()
+
+    # ----------------------------------------------------------------- any thread (the GUI)
+    @property
+    def thread(self) -> threading.Thread:
+        return self._thread
+
+    def update(self, camera, settings) -> int:
+        """Show ``camera`` (full viewport size) with these settings (see ``prepare``).
+
+        Returns at once. A request that differs from the current one cancels the frame being
+        traced. Returns the request's generation number.
+        """
+        with self._lock:
+            r = self._request
+            if r is not None and same_camera(r.camera, camera) and r.settings == settings:
+                return r.generation
+            self._generation += 1
+            self._request = _Request(camera, settings, self._generation)
+            self._wake.notify_all()
+            return self._generation
+
+    def shutdown(self, timeout: float = SHUTDOWN_TIMEOUT_S) -> bool:
+        """Cancel the frame being traced and end the thread; True once it has ended."""
+        with self._lock:
+            self._stop = True
+            self._wake.notify_all()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    # ----------------------------------------------------------------- worker thread
+    def _next(self, shown: int, more: bool):
+        """Wait for work: (request, moving), or None to stop.
+
+        A request not shown yet gets a moving frame; the request shown gets still passes (while
+        ``more``) once the camera has held still for STILL_DELAY_S.
+        """
+        with self._lock:
+            while not self._stop:
+                r = self._request
+                if r is not None and r.generation != shown:
+                    return r, True
+                if r is not None and more:
+                    wait_s = STILL_DELAY_S - (time.monotonic() - r.time)
+                    if wait_s <= 0:
+                        return r, False
+                    self._wake.wait(wait_s)
+                else:
+                    self._wake.wait()
+            return None
+
+    def _loop(self) -> None:
+        from ..rendering import render
+
+        render_fn = self._render_fn or render
+        shown = 0          # generation of the request the last frame answered
+        acc = None         # still accumulation of request `shown`
+        more = True        # request `shown` still wants passes
+        while True:
+            job = self._next(shown, more)
+            if job is None:
+                return
+            req, moving = job
+            cancel = _StaleToken(self, req.generation, STALE_MOVING_S if moving else 0.0)
+            try:
+                scene, kwargs = self._scene_and_options(req.settings)
+                if moving:
+                    out = self._moving_frame(render_fn, req, scene, kwargs, cancel)
+                    acc = None
+                else:
+                    if acc is None:
+                        acc = _Accumulator(req.camera)
+                    out = self._still_pass(render_fn, req, scene, kwargs, cancel, acc)
+            except CancelledError:
+                self.cancelled_frames += 1
+                continue
+            except Exception as exc:  # noqa: BLE001 - reported, the loop goes on
+                self._on_error(exc)
+                shown, acc, more = req.generation, None, False
+                continue
+            shown = req.generation
+            more = acc is None or acc.spp < MAX_STILL_SPP
+            self._on_frame(out)
+
+    def _scene_and_options(self, settings):
+        p = self._prepared
+        if p is None or p[0] != settings:
+            scene, kwargs = self._prepare(settings)
+            kwargs = dict(kwargs)
+            kwargs.pop("spp", None)
+            kwargs.pop("denoise", None)
+            kwargs.setdefault("background", self.background)
+            if kwargs.get("threads") is None:
+                kwargs["threads"] = self.threads or (os.cpu_count() or 1)
+            p = self._prepared = (settings, scene, kwargs)
+        return p[1], dict(p[2])
+
+    def _moving_frame(self, render_fn, req, scene, kwargs, cancel) -> LiveFrame:
+        fraction = self.controller.fraction
+        camera = scaled_camera(req.camera, fraction)
+        fraction = camera.width * camera.height / (req.camera.width * req.camera.height)
+        kwargs["lod_pixels"] = max(float(kwargs.get("lod_pixels", 1.0)), MOVING_LOD_PIXELS)
+        t0 = time.perf_counter()
+        frame = render_fn(scene, camera, spp=1, cancel=cancel, **kwargs)
+        seconds = time.perf_counter() - t0
+        self.controller.observe(fraction, seconds)
+        self.moving_frames += 1
+        return LiveFrame(frame.to_srgb8(), frame, camera, req.generation, True, fraction, 1,
+                         False, seconds)
+
+    def _still_pass(self, render_fn, req, scene, kwargs, cancel, acc) -> LiveFrame:
+        n = acc.next_pass_spp()
+        t0 = time.perf_counter()
+        frame = render_fn(scene, req.camera, spp=n, sample_offset=acc.spp,
+                          sequence_spp=MAX_STILL_SPP, cancel=cancel, **kwargs)
+        seconds = time.perf_counter() - t0
+        acc.add(frame, n, seconds)
+        self.still_passes += 1
+        mean = acc.frame(frame)
+        denoised = False
+        if self.denoise and acc.spp >= acc.next_denoise:
+            from ..denoise import denoise_frame
+
+            denoise_frame(mean, LIVE_DENOISE_QUALITY)
+            acc.next_denoise = DENOISE_GROWTH * acc.spp
+            acc.denoised_image = mean.to_srgb8()
+            denoised = True
+        image = acc.denoised_image if acc.denoised_image is not None else mean.to_srgb8()
+        return LiveFrame(image, mean, req.camera, req.generation, False, 1.0, acc.spp,
+                         denoised or acc.denoised_image is not None, seconds)
+
+
+class _StaleToken:
+    """The cancel token of one frame (``render(cancel=)`` polls ``is_set``): set once the
+    renderer stops, or a newer request has existed for ``grace`` seconds of this frame."""
+
+    def __init__(self, renderer: LiveRenderer, generation: int, grace: float):
+        self._r = renderer
+        self._generation = generation
+        self._deadline = time.monotonic() + grace
+
+    def is_set(self) -> bool:
+        r = self._r
+        return r._stop or (r._generation != self._generation
+                           and time.monotonic() >= self._deadline)
+
+    def wait(self, timeout: float) -> bool:
+        """Block until set (or ``timeout`` seconds); returns ``is_set()``."""
+        end = time.monotonic() + timeout
+        with self._r._wake:
+            while not self.is_set():
+                left = min(end, max(self._deadline, time.monotonic() + 1e-3)) - time.monotonic()
+                if time.monotonic() >= end:
+                    break
+                self._r._wake.wait(max(left, 1e-3))
+        return self.is_set()
+
+
+class _Accumulator:
+    """Running sums of one still view's passes (worker thread only)."""
+
+    def __init__(self, camera):
+        self.camera = camera
+        self.spp = 0
+        self.sums: dict = {}
+        self.seconds_per_sample: float | None = None
+        self.next_denoise = DENOISE_FIRST_SPP
+        self.denoised_image = None
+
+    def next_pass_spp(self) -> int:
+        if self.seconds_per_sample is None:
+            return 1
+        n = int(STILL_PASS_S / max(self.seconds_per_sample, 1e-6))
+        return int(np.clip(n, 1, min(MAX_PASS_SPP, MAX_STILL_SPP - self.spp)))
+
+    def add(self, frame, n: int, seconds: float) -> None:
+        for name in ("color", "albedo", "alpha", "object_alpha"):
+            buf = getattr(frame, name)
+            if buf is None:
+                continue
+            w = np.float64(n)
+            if name in self.sums:
+                self.sums[name] += buf * w
+            else:
+                self.sums[name] = buf.astype(np.float64) * w
+        # depth and normal: the newest pass's (the denoiser's guide; means of normals and of
+        # infinite depths are not what the buffers hold)
+        self.depth, self.normal = frame.depth, frame.normal
+        self.spp += n
+        self.seconds_per_sample = seconds / n
+
+    def frame(self, last):
+        """The mean as a :class:`~pointviz.rendering.Frame` (float32 buffers)."""
+        from ..images import auto_exposure
+        from ..rendering import Frame
+
+        inv = 1.0 / self.spp
+        m = {k: (v * inv).astype(np.float32) for k, v in self.sums.items()}
+        stats = dict(last.stats, spp=self.spp)
+        out = Frame(m["color"], self.depth, self.normal, m["alpha"], stats, self.camera,
+                    albedo=m.get("albedo"), object_alpha=m.get("object_alpha"),
+                    exposure=last.exposure)
+        if last.exposure != 1.0 or stats.get("auto_exposure"):
+            out.exposure = auto_exposure(out.color, out.object_alpha)
+        return out
+
+
+def _denoise_available() -> bool:
+    try:
+        from ..denoise import check_available
+
+        check_available()
+        return True
+    except Exception:  # noqa: BLE001 - any failure: no denoising
+        return False
+
+
+__all__ = ["LiveFrame", "LiveRenderer", "ResolutionController", "orbit_camera", "same_camera",
+           "scaled_camera"]
