@@ -234,9 +234,11 @@ class PointCloud:
 
         See :func:`pointviz.estimation.fit_surface`: each point moves onto a quadric fitted to
         its neighbourhood across all scans and takes that fit's normal; where scans overlap,
-        points within the spacing of a kept point are dropped. ``notes`` gets one line saying
-        what changed, and ``fit_report`` holds it as numbers (``points_in``, ``points_kept``,
-        ``mean_shift``, ``mean_shift_spacings``, ``unmoved``) and that line (``summary``).
+        points within the spacing of a kept point are dropped, and so are stray clusters (small
+        pieces apart from the object). ``notes`` gets one line saying what changed, and
+        ``fit_report`` holds it as numbers (``points_in``, ``points_kept``, ``mean_shift``,
+        ``mean_shift_spacings``, ``unmoved``, ``stray_points``, ``stray_clusters``) and that line
+        (``summary``).
 
         Parameters
         ----------
@@ -273,6 +275,8 @@ class PointCloud:
             "mean_shift": shift,
             "mean_shift_spacings": shift / fit.spacing if fit.spacing > 0 else 0.0,
             "unmoved": fit.unmoved,
+            "stray_points": fit.stray_points,
+            "stray_clusters": fit.stray_clusters,
             "summary": fit.summary(),
         }
         return out

@@ -18,7 +18,8 @@ Pipeline for raw scans (no normals):
    a minimum spanning tree of the neighbour graph, each connected part facing outward.
 4. Optionally (:func:`fit_surface`, on by default for registered scans): every point moves onto a
    robust quadric fit of its neighbourhood across all scans, and points that add nothing where
-   scans overlap are dropped.
+   scans overlap are dropped, and so are stray clusters (:func:`stray_clusters`): pieces of the
+   neighbour graph too small to be part of the scanned object.
 5. Radii that just cover the surface (:func:`coverage_radii`).
 """
 
@@ -92,6 +93,11 @@ FIT_PASSES = 2
 FIT_ROBUST_PASSES = 1
 FIT_ROBUST_WIDTH = 2.0
 FIT_THIN = 0.75
+
+# Stray clusters: neighbours searched per point, as many as the surface fit's table holds (its
+# links, the spacing rule and the sizes below which a component is stray are the core's
+# StrayOptions, where the measurements behind them are).
+STRAY_K = NORMAL_K_MAX - 1
 
 
 def _core():
@@ -382,6 +388,8 @@ class SurfaceFit:
     shift: np.ndarray
     unmoved: int
     spacing: float
+    stray_points: int = 0
+    stray_clusters: int = 0
 
     @property
     def kept(self) -> int:
@@ -396,12 +404,16 @@ class SurfaceFit:
                 f"mean shift {mean:.3g}{rel}")
         if self.unmoved:
             text += f"; {self.unmoved} points not moved (degenerate neighbourhood)"
+        if self.stray_points:
+            text += (f"; dropped {self.stray_points} stray points in {self.stray_clusters} "
+                     f"cluster{'s' if self.stray_clusters != 1 else ''}")
         return text
 
 
 def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=None,
                 thin: float = FIT_THIN, quadric: bool = True, passes: int = FIT_PASSES,
-                robust_passes: int = FIT_ROBUST_PASSES, threads: int = 0) -> SurfaceFit:
+                robust_passes: int = FIT_ROBUST_PASSES, strays: bool = True,
+                threads: int = 0) -> SurfaceFit:
     """Move points onto a robust local fit of the surface across all scans; mark the redundant.
 
     Each point's neighbourhood (at least :data:`FIT_MIN_SUPPORT` points, more where the normal
@@ -412,6 +424,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     not pull curved parts inward. Then, visiting the points seen most head-on first (by their
     viewpoints), a point is dropped when a kept point lies within ``thin`` x its spacing in its
     own scan: where scans overlap about one layer remains, a single scan keeps all its points.
+    With ``strays``, the points of stray clusters (see :func:`stray_clusters`) are not kept
+    either.
 
     Parameters
     ----------
@@ -433,6 +447,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
         >= 1 (see :data:`FIT_PASSES`).
     robust_passes : int
         Reweightings per fit, >= 0.
+    strays : bool
+        Drop stray clusters (default).
     threads : int
 
     Returns
@@ -453,8 +469,69 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
         pts, nrm, vp, group, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
         NORMAL_CONFIDENCE, _orient(), FIT_MIN_SUPPORT, bool(quadric), _count("passes", passes, 1),
         _count("robust_passes", robust_passes, 0),
-        FIT_ROBUST_WIDTH, float(thin), _threads(threads),
+        FIT_ROBUST_WIDTH, float(thin), bool(strays), _threads(threads),
     )
     return SurfaceFit(points=out["points"], normals=out["normals"], keep=out["keep"].astype(bool),
                       shift=out["shift"], unmoved=int(out["unmoved"]),
-                      spacing=float(np.median(out["spacing"])))
+                      spacing=float(np.median(out["spacing"])),
+                      stray_points=int(out["stray_points"]),
+                      stray_clusters=int(out["stray_clusters"]))
+
+
+@dataclass
+class StrayClusters:
+    """What :func:`stray_clusters` found.
+
+    Attributes
+    ----------
+    stray : (n,) bool
+        Points of stray clusters.
+    label : (n,) int64
+        Connected component of each point, numbered in the order of their first points.
+    components : int
+        Connected components.
+    clusters : int
+        Stray components.
+    """
+
+    stray: np.ndarray
+    label: np.ndarray
+    components: int
+    clusters: int
+
+    @property
+    def points(self) -> int:
+        return int(self.stray.sum())
+
+
+def stray_clusters(points, *, scan_index=None, k: int = STRAY_K, threads: int = 0) -> StrayClusters:
+    """Small pieces of a scan that are not part of the scanned object.
+
+    Two points are linked when one is among the other's ``k`` nearest neighbours and their
+    distance is at most a few times the smaller of their spacings (each point's nearest
+    distinct neighbour in its own scan). A connected component is stray when it has fewer
+    points than an absolute count or than a fraction of the cloud (the core's StrayOptions);
+    the largest component never is. :func:`fit_surface` drops them by default.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        Finite positions, n >= 2.
+    scan_index : (n,) array_like of int, optional
+        Which scan each point came from (the spacing is measured within a point's scan).
+    k : int
+        Neighbours per point, >= 1; clamped to n - 1.
+    threads : int
+        Worker threads, 0 for all cores. Results do not depend on it.
+
+    Returns
+    -------
+    StrayClusters
+    """
+    pts = _points(points, minimum=2)
+    n = len(pts)
+    group = None if scan_index is None else array_checks.per_point(
+        "scan_index", scan_index, n, np.int32)
+    out = _core().stray_clusters(pts, group, min(_count("k", k, 1), n - 1), threads=_threads(threads))
+    return StrayClusters(stray=out["stray"].astype(bool), label=out["label"].astype(np.int64),
+                         components=int(out["components"]), clusters=int(out["clusters"]))

@@ -409,3 +409,122 @@ def test_cloud_module_reexports_estimation():
 
     for name in ("estimate_normals", "orient_normals", "estimate_radii", "coverage_radii"):
         assert getattr(cloud, name) is getattr(est, name)
+
+
+# ------------------------------------------------------------------------------------------
+# stray clusters
+
+# The core's StrayOptions: link reach in spacings, the spacing's rank, the size rule.
+STRAY_REACH, STRAY_RANK, STRAY_MIN_POINTS, STRAY_FRACTION = 3.0, 4, 32, 1e-3
+
+
+def stray_oracle(points, scan_index, k=est.STRAY_K):
+    """The stray rule computed independently: scipy's neighbours and connected components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(points)
+    k = min(k, n - 1)
+    d, idx = cKDTree(points).query(points, k + 1)
+    d, idx = d[:, 1:], idx[:, 1:]
+    group = np.zeros(n, int) if scan_index is None else np.asarray(scan_index)
+    own = (group[idx] == group[:, None]) & (d > 0)
+    rank = np.cumsum(own, axis=1) >= STRAY_RANK
+    col = np.where(rank.any(1), np.argmax(rank, axis=1), np.argmax(np.where(d > 0, d, -1), 1))
+    spacing = d[np.arange(n), col]
+    link = (d <= STRAY_REACH * np.minimum(spacing[:, None], spacing[idx])).ravel()
+    rows = np.repeat(np.arange(n), k)[link]
+    graph = coo_matrix((np.ones(len(rows)), (rows, idx.ravel()[link])), shape=(n, n))
+    _, label = connected_components(graph, directed=True, connection="weak")
+    size = np.bincount(label)
+    stray = size < max(STRAY_MIN_POINTS, STRAY_FRACTION * n)
+    stray[np.argmax(size)] = False
+    return label, stray[label]
+
+
+def sphere_with_clusters(rng, n=20000, sizes=(3, 5, 8, 13, 20)):
+    """Random points on the unit sphere and, 2 to 4 radii away, small blobs sampled as densely
+    as the sphere: (points, true mask of the blobs)."""
+    x = rng.normal(size=(n, 3))
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    spacing = np.sqrt(4 * np.pi / n)
+    parts, mask = [x], [np.zeros(n, bool)]
+    for s in sizes:
+        centre = rng.normal(size=3)
+        centre *= rng.uniform(2, 4) / np.linalg.norm(centre)
+        parts.append(centre + spacing * rng.normal(size=(s, 3)))
+        mask.append(np.ones(s, bool))
+    return np.concatenate(parts), np.concatenate(mask)
+
+
+def test_stray_clusters_are_exactly_the_far_blobs(rng):
+    pts, truth = sphere_with_clusters(rng)
+    res = est.stray_clusters(pts)
+    np.testing.assert_array_equal(res.stray, truth)
+    assert res.clusters == 5 and res.points == truth.sum() and res.components == 6
+    for blob in np.unique(res.label[truth]):  # each blob is one component of its own
+        assert np.all(res.label[res.label == blob] == blob)
+
+
+def test_stray_clusters_match_the_oracle_on_overlapping_scans(torus_scans, rng):
+    cloud, _ = torus_scans
+    pts = cloud.points + rng.normal(scale=0.3, size=cloud.points.shape) * (
+        rng.random(len(cloud)) < 0.002)[:, None]  # a few points knocked off the surface
+    res = est.stray_clusters(pts, scan_index=cloud.scan_index)
+    label, stray = stray_oracle(pts, cloud.scan_index)
+    np.testing.assert_array_equal(res.stray, stray)
+    # the same partition into components (numbered differently)
+    pairs = np.unique(np.c_[res.label, label], axis=0)
+    assert len(pairs) == res.components == label.max() + 1
+    assert res.points > 0  # the knocked-off points are found
+
+
+def test_stray_clusters_identical_for_any_thread_count(rng):
+    pts, _ = sphere_with_clusters(rng, n=6000)
+    scans = rng.integers(0, 3, len(pts))
+    runs = [est.stray_clusters(pts, scan_index=scans, threads=t) for t in (1, 2, 3)]
+    for r in runs[1:]:
+        np.testing.assert_array_equal(r.stray, runs[0].stray)
+        np.testing.assert_array_equal(r.label, runs[0].label)
+
+
+def test_one_cluster_keeps_everything_and_a_big_second_part_is_kept(rng, fibonacci):
+    sphere = fibonacci(4000)
+    res = est.stray_clusters(sphere)
+    assert res.components == 1 and not res.stray.any()
+    # a second, smaller sphere far away: above both size limits, so not stray
+    two = np.concatenate([sphere, 10 + 0.3 * fibonacci(400)])
+    res = est.stray_clusters(two)
+    assert res.components == 2 and not res.stray.any()
+
+
+def test_stray_clusters_of_tiny_and_bad_input(rng):
+    res = est.stray_clusters([[0, 0, 0], [1, 0, 0], [50, 0, 0]])
+    # fewer points than the spacing's rank: each spacing is its farthest neighbour, one part
+    assert res.components == 1 and not res.stray.any()
+    dup = est.stray_clusters(np.zeros((5, 3)))  # all one position: nothing to measure, one part
+    assert not dup.stray.any()
+    with pytest.raises(InputError, match="points: has 1 point"):
+        est.stray_clusters([[0, 0, 0]])
+    with pytest.raises(InputError, match="points"):
+        est.stray_clusters(np.empty((0, 3)))
+    with pytest.raises(InputError, match="points"):
+        est.stray_clusters([[0, 0, np.nan], [1, 0, 0]])
+    with pytest.raises(InputError, match="scan_index: expected shape"):
+        est.stray_clusters(rng.normal(size=(10, 3)), scan_index=np.zeros(3, int))
+
+
+def test_fit_drops_stray_clusters_and_says_so(torus_scans, rng):
+    cloud, _ = torus_scans
+    spacing = np.median(est.knn(cloud.points, 1)[0])
+    blobs = [c + spacing * rng.normal(size=(s, 3)) for c, s in (((3, 0, 0), 7), ((0, 3, 1), 15))]
+    pts = np.concatenate([cloud.points, *blobs])
+    scans = np.r_[cloud.scan_index, np.zeros(22, np.int32)]
+    vps = np.r_[cloud.viewpoints, np.repeat(cloud.viewpoints[:1], 22, axis=0)]
+    fit = est.fit_surface(pts, viewpoints=vps, scan_index=scans)
+    assert not fit.keep[-22:].any()
+    assert fit.stray_points == 22 and fit.stray_clusters == 2
+    assert fit.summary().endswith("; dropped 22 stray points in 2 clusters")
+    kept = est.fit_surface(pts, viewpoints=vps, scan_index=scans, strays=False)
+    assert kept.stray_points == 0 and kept.keep[-22:].any()
+    np.testing.assert_array_equal(fit.keep[:-22], kept.keep[:-22])  # the torus is untouched

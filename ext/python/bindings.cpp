@@ -718,7 +718,7 @@ NB_MODULE(_core, m) {
                             std::optional<std::array<double, 3>> up, uint32_t k_min, uint32_t k_max,
                             double confidence, OrientArgs orient, uint32_t min_support,
                             bool quadric, int passes, int robust_passes, double robust_width,
-                            double thin, int threads) {
+                            double thin, bool strays, int threads) {
         PointsView v = points_view(points, viewpoints, scan_index);
         if (normals) check_normals(*normals, v.n);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
@@ -732,7 +732,11 @@ NB_MODULE(_core, m) {
         fo.thin = thin;
         fo.threads = threads;
         const float *nrm = normals ? normals->data() : nullptr;
-        FitOutput o = run_step([&](Progress &pr) { return fit_points(v, nrm, no, oo, fo, pr); });
+        StrayOptions so;
+        so.threads = threads;
+        FitOutput o = run_step([&](Progress &pr) {
+            return fit_points(v, nrm, no, oo, fo, pr, strays ? &so : nullptr);
+        });
         nb::dict d;
         d["points"] = to_array(o.fit.points, {v.n, 3});
         d["normals"] = to_array(o.fit.normals, {v.n, 3});
@@ -741,9 +745,33 @@ NB_MODULE(_core, m) {
         d["spacing"] = to_array(o.fit.spacing, {v.n});
         d["kept"] = o.fit.kept;
         d["unmoved"] = o.fit.unmoved;
+        d["stray"] = to_array(o.stray.stray, {o.stray.stray.size()});
+        d["stray_points"] = o.stray.points;
+        d["stray_clusters"] = o.stray.clusters;
         if (!nrm) d["estimate"] = normals_dict(o.normals, v.n);
         return d;
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
        "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,
-       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "threads"_a = 0);
+       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "strays"_a = true, "threads"_a = 0);
+
+    m.def("stray_clusters", [](CArray<double> points, std::optional<CArray<int32_t>> scan_index,
+                               uint32_t k, double reach, uint32_t min_points, double fraction,
+                               int threads) {
+        PointsView v = points_view(points, std::nullopt, scan_index);
+        StrayOptions so;
+        so.reach = reach;
+        so.min_points = min_points;
+        so.fraction = fraction;
+        so.threads = threads;
+        StrayResult r = run_step([&](Progress &pr) { return stray_points(v, k, so, pr); });
+        nb::dict d;
+        d["stray"] = to_array(r.stray, {v.n});
+        d["label"] = to_array(r.label, {v.n});
+        d["components"] = r.components;
+        d["points"] = r.points;
+        d["clusters"] = r.clusters;
+        return d;
+    }, "points"_a, "scan_index"_a.none(), "k"_a, "reach"_a = StrayOptions{}.reach,
+       "min_points"_a = StrayOptions{}.min_points, "fraction"_a = StrayOptions{}.fraction,
+       "threads"_a = 0);
 }

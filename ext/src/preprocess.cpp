@@ -138,8 +138,19 @@ std::vector<float> radii_points(const PointsView &in, const float *normals, uint
     return sp.to_input(coverage_radii(sp.view.points, nrm.data(), t, opt, &progress));
 }
 
+StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &opt,
+                         Progress &progress) {
+    Spatial sp(in, opt.threads, progress);
+    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, opt.threads, &progress);
+    StrayResult r = find_stray_clusters(sp.view.points, t, sp.view.group, opt, &progress);
+    r.stray = sp.to_input(r.stray);
+    r.label = sp.to_input(r.label);
+    return r;
+}
+
 FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
-                     const OrientOptions &oopt, const FitOptions &fopt, Progress &progress) {
+                     const OrientOptions &oopt, const FitOptions &fopt, Progress &progress,
+                     const StrayOptions *sopt) {
     Spatial sp(in, fopt.threads, progress);
     uint32_t k = std::max({nopt.k_max - 1, oopt.k, fopt.min_support - 1});
     NeighbourTable t = knn_all(sp.tree, sp.view.points, k, fopt.threads, &progress);
@@ -158,6 +169,14 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
                           fopt, &progress);
     if (!normals) normals_to_input(sp, out.normals);
     FitResult &f = out.fit;
+    if (sopt) {  // the components of the input's neighbour graph: the fit moved points apart
+        out.stray = find_stray_clusters(v.points, t, v.group, *sopt, &progress);
+        for (size_t i = 0; i < v.n; ++i)
+            if (out.stray.stray[i]) f.keep[i] = 0;
+        f.kept = size_t(std::count(f.keep.begin(), f.keep.end(), uint8_t(1)));
+        out.stray.stray = sp.to_input(out.stray.stray);
+        out.stray.label = sp.to_input(out.stray.label);
+    }
     f.points = sp.to_input(f.points, 3);
     f.normals = sp.to_input(f.normals, 3);
     f.keep = sp.to_input(f.keep);

@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "pointviz/components.h"
 #include "pointviz/knn.h"
 #include "pointviz/normals.h"
 #include "pointviz/orient.h"
@@ -49,12 +50,19 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
 std::vector<float> radii_points(const PointsView &in, const float *normals, uint32_t k,
                                 const CoverOptions &opt, Progress &progress);
 
-/// Normals (estimated and oriented if `normals` is null), then the surface fit and thinning.
+/// Stray clusters over `k` neighbours (see components.h).
+StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &opt,
+                         Progress &progress);
+
+/// Normals (estimated and oriented if `normals` is null), then the surface fit and thinning;
+/// with `sopt` (non-null), points of stray clusters are not kept either.
 struct FitOutput {
     NormalsOutput normals;     ///< empty when normals were given
     FitResult fit;
+    StrayResult stray;         ///< empty without `sopt`
 };
 FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
-                     const OrientOptions &oopt, const FitOptions &fopt, Progress &progress);
+                     const OrientOptions &oopt, const FitOptions &fopt, Progress &progress,
+                     const StrayOptions *sopt = nullptr);
 
 }  // namespace pointviz
