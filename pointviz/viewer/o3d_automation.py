@@ -184,8 +184,13 @@ class AutomationMixin:
         atomic_write_text(a.report, json.dumps(self.report(), indent=2, default=str),
                           overwrite=a.overwrite)
 
-    def call(self, fn, timeout: float = 30.0):
-        """Run ``fn()`` on the GUI thread and return its result (call from another thread)."""
+    def call(self, fn, timeout: float = 30.0, redraw: bool = True):
+        """Run ``fn()`` on the GUI thread and return its result (call from another thread).
+
+        With ``redraw`` (the default) the window is redrawn after ``fn``, so that widget changes
+        show at once; without, ``fn`` runs at the next tick event (every ~10 ms) and the window
+        is not redrawn for it (queries of state, and what changes nothing on screen).
+        """
         box: dict = {}
         done = threading.Event()
 
@@ -196,7 +201,10 @@ class AutomationMixin:
                 box["error"] = exc
             done.set()
 
-        self.app.post_to_main_thread(self.window, run)
+        if redraw:
+            self.app.post_to_main_thread(self.window, run)
+        else:
+            self._tick_queue.append(run)
         if not done.wait(timeout):
             raise TimeoutError(f"GUI thread did not run the call within {timeout} s")
         if "error" in box:
