@@ -257,6 +257,10 @@ class Scene:
         s = Scene(up=self.up, two_sided=False, **kw, **self._scene_options)
         if same_objects:
             s._init(_build_options=self._build_options, _built=self._built)
+        else:  # a cloud kept from this scene keeps its surfel options (an unpickled one's too)
+            mine = {id(o.geometry): opts for o, opts in zip(self.objects, self._build_options)}
+            s._init(_build_options=tuple(mine.get(id(o.geometry), opts)
+                                         for o, opts in zip(s.objects, s._build_options)))
         return s
 
     def with_look(self, look) -> Scene:

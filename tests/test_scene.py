@@ -273,3 +273,17 @@ def test_concurrent_first_use_builds_each_tree_once(rng):
     assert sorted(built) in ([0, 0, 0, 2], [0, 0, 1, 1])
     assert sum(built) == 2
     assert len({id(c.geometry(0)) for c in copies}) == 1
+
+
+def test_an_unpickled_surfel_object_keeps_its_options_through_replace(rng):
+    import pickle
+
+    from pointviz.shapes import sphere
+    from pointviz.surfels import SurfelScene
+
+    ss = SurfelScene(sphere(2000), interpolation="paper", leaf_size=5)
+    copy = pickle.loads(pickle.dumps(Scene([ss, sphere(1000)])))
+    again = copy.replace(clouds=[o.geometry for o in copy.objects][::-1])
+    assert again.geometry(1).interpolation == "paper"
+    assert again.geometry(1).settings["leaf_size"] == 5
+    assert again.geometry(0).interpolation != "paper"
