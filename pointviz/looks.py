@@ -113,13 +113,15 @@ def resolve_look(look, geometry, up) -> Look:
         return look
     if look == "auto":
         from .camera import shape_kind
+        from .geometry import Geometry
+        from .surfels import SurfelScene
 
-        cloud = getattr(geometry, "cloud", geometry)
-        pts = getattr(cloud, "points", None)
-        if hasattr(geometry, "shape_kind") and hasattr(geometry, "tree"):  # a SurfelScene
+        if isinstance(geometry, SurfelScene):
             kind = geometry.shape_kind(up)  # kept with the scene: every frame asks again
-        else:
-            kind = shape_kind(pts, up) if pts is not None else "object"
+        elif isinstance(geometry, Geometry):  # a mesh: an object
+            kind = "object"
+        else:  # a point cloud
+            kind = shape_kind(geometry.points, up)
         return LOOKS["outdoor" if kind == "terrain" else "studio"]
     if look not in LOOKS:
         raise InputError(f"look: expected one of auto, {', '.join(LOOKS)}, got {look!r}")
