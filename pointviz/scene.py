@@ -101,7 +101,8 @@ class Scene:
     Attributes cannot be set after construction; :meth:`replace` makes a validated copy that
     shares the objects' trees. A scene pickles without its C++ trees: the clouds' arrays
     (normals and radii estimated first) and the surfel options travel, and the trees are
-    rebuilt on first use in the receiving process, once per scene object there.
+    rebuilt on first use in the receiving process, once per scene object there (an unpickled
+    scene's ``objects`` hold the clouds; :meth:`geometry` gives their rebuilt SurfelScenes).
 
     Parameters
     ----------
