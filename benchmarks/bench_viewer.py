@@ -49,6 +49,7 @@ VARIANTS = (("normal, all cores", False, 0), ("nice, all cores", True, 0),
              "worker.PROGRESS_INTERVAL_S = 10 * worker.PROGRESS_INTERVAL_S"),
             ("nice, cores-1, LP_NUM_THREADS=1", True, -1, "", {"LP_NUM_THREADS": "1"}),
             ("nice, cores-1, switchinterval 1ms", True, -1, "sys.setswitchinterval(0.001)"),
+            ("nice, cores-1, calls redraw the window", True, -1, "REDRAW = True"),
             ("no render (anchor)", True, None))
 
 DRIVER = """
@@ -57,6 +58,7 @@ import numpy as np
 import pointviz
 from pointviz.viewer import worker
 worker.RENDER_IN_BACKGROUND = {background}
+REDRAW = False  # the timed calls change nothing on screen: no redraw of the window for them
 {setup}
 {load_cloud}
 res = {{}}
@@ -67,19 +69,23 @@ def drive(v):
         if {render}:
             v.call(v._on_render, timeout=600)
             deadline = time.monotonic() + 600
-            while v.call(lambda: v.progress.value, timeout=600) <= 0:  # first progress shown
+            while v.call(lambda: v.progress.value, timeout=600, redraw=False) <= 0:  # first report
                 assert time.monotonic() < deadline, "no progress report"
-        lat = []
+        lat, wait = [], []
         for _ in range({calls}):
+            box = {{}}
             t = time.perf_counter()
             try:
-                v.call(lambda: None, timeout={timeout})
+                v.call(lambda: box.setdefault("ran", time.perf_counter()), timeout={timeout},
+                       redraw=REDRAW)
             except TimeoutError:                       # counted as the timeout, not dropped
                 pass
             lat.append(time.perf_counter() - t)
+            wait.append(box.get("ran", t + {timeout}) - t)  # posted -> running on the GUI thread
             time.sleep({spacing})
         res["running"] = v.worker.running or not {render}
         res["latency_s"] = lat
+        res["wait_s"] = wait
     except BaseException:
         res["error"] = traceback.format_exc()
     finally:
@@ -143,7 +149,11 @@ def main(argv=None) -> int:
     data_name = "dragon scans (dragonStandRight.conf)" if dragon.exists() else "sphere(200000)"
     selected = [v for i, v in enumerate(VARIANTS)
                 if i == 0 or not args.only or any(t in v[0] for t in args.only)]
+    if args.only and any(t == v[0] for t in args.only for v in VARIANTS):  # exact names
+        selected = [v for i, v in enumerate(VARIANTS) if i == 0 or v[0] in args.only]
     samples: dict = {}
+    waits: dict = {}
+    loads: dict = {}
     for _ in range(args.rounds):
         for condition in ("idle", "loaded"):
             load = busy_processes(LOAD_PROCESSES) if condition == "loaded" else []
@@ -151,10 +161,12 @@ def main(argv=None) -> int:
                 for name, background, threads, *extra in selected:
                     res = run_variant(background, threads, load_cloud, *extra)
                     samples.setdefault((condition, name), []).extend(res["latency_s"])
+                    waits.setdefault((condition, name), []).extend(res["wait_s"])
+                    loads.setdefault((condition, name), []).append(os.getloadavg()[0])
                     lat = np.array(res["latency_s"]) * 1e3
-                    print(f"{condition:6s} {name:34s} median {np.median(lat):6.1f} ms  "
-                          f"p95 {np.percentile(lat, 95):6.1f} ms  max {lat.max():6.1f} ms",
-                          flush=True)
+                    print(f"{condition:6s} {name:40s} median {np.median(lat):6.1f} ms  "
+                          f"p95 {np.percentile(lat, 95):6.1f} ms  max {lat.max():6.1f} ms  "
+                          f"(load {os.getloadavg()[0]:.1f})", flush=True)
             finally:
                 for p in load:
                     p.kill()
@@ -162,7 +174,10 @@ def main(argv=None) -> int:
     rows = []
     for (condition, name), lat in samples.items():
         a = np.array(lat)
+        w = np.array(waits[condition, name])
         rows.append({"condition": condition, "variant": name, "calls": len(a),
+                     "wait_p95_s": float(np.percentile(w, 95)), "wait_max_s": float(w.max()),
+                     "load_average_1min": float(np.mean(loads[condition, name])),
                      "median_s": float(np.median(a)), "p95_s": float(np.percentile(a, 95)),
                      "max_s": float(a.max()), "within_target": float(np.mean(a <= TARGET_S))})
     base = {r["condition"]: r for r in rows if r["variant"] == VARIANTS[0][0]}
@@ -174,12 +189,14 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1))
     print(f"\n{data_name}, {os.cpu_count()} cores, {CALLS * args.rounds} calls per cell")
-    print(f"{'condition':9s} {'variant':34s} {'median':>8s} {'p95':>8s} {'max':>8s} "
-          f"{'<=100ms':>8s} {'p95/normal':>10s}")
+    print("round trip (post, run on the GUI thread, caller woken); wait: post -> run")
+    print(f"{'condition':9s} {'variant':40s} {'median':>8s} {'p95':>8s} {'max':>8s} "
+          f"{'<=100ms':>8s} {'p95/normal':>10s} {'wait p95':>9s} {'wait max':>9s} {'load':>5s}")
     for r in rows:
-        print(f"{r['condition']:9s} {r['variant']:34s} {r['median_s'] * 1e3:7.1f}m "
+        print(f"{r['condition']:9s} {r['variant']:40s} {r['median_s'] * 1e3:7.1f}m "
               f"{r['p95_s'] * 1e3:7.1f}m {r['max_s'] * 1e3:7.1f}m {r['within_target']:8.0%} "
-              f"{r['p95_ratio_to_normal_all_cores']:10.2f}")
+              f"{r['p95_ratio_to_normal_all_cores']:10.2f} {r['wait_p95_s'] * 1e3:8.1f}m "
+              f"{r['wait_max_s'] * 1e3:8.1f}m {r['load_average_1min']:5.1f}")
     print(f"wrote {args.out}")
     return 0
 

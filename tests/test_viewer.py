@@ -29,10 +29,13 @@ from pointviz.viewer.worker import RenderWorker
 SCREENSHOT_TOLERANCE = 12.0
 #: A panel is "not blank" when its pixel standard deviation exceeds this.
 NOT_BLANK_STD = 8.0
-#: Subprocess time limit, seconds (a GUI start plus a small render takes ~5 s here).
-GUI_TIMEOUT_S = 240
-#: Worker must end this soon after Cancel or close, seconds (tiles are small).
-STOP_TIMEOUT_S = 10.0
+#: Subprocess time limit, seconds: a GUI start plus a small render takes ~5 s idle and over a
+#: minute at load 16 on two cores; only a hang should reach this.
+GUI_TIMEOUT_S = 900
+#: Worker must end this soon after Cancel or close, seconds: the core polls the cancel flag
+#: every few ms of work, but a nice +10 tracer next to a loaded machine gets little CPU; only a
+#: worker that ignores the flag takes this long.
+STOP_TIMEOUT_S = 60.0
 
 CLOUD_SNIPPET = "from pointviz.shapes import sphere\ncloud = sphere(6000, color=(0.8, 0.35, 0.2))\n"
 
@@ -248,7 +251,7 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
 
         def wait_for(v, what, cond, timeout=120):
             deadline = time.monotonic() + timeout
-            while not v.call(cond):                   # one GUI round trip per check
+            while not v.call(cond, redraw=False):     # one GUI round trip per check
                 assert time.monotonic() < deadline, f"{{what}}: not within {{timeout}} s"
 
         def drive(v):
@@ -257,11 +260,11 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
                 wait_for(v, "first progress report", lambda: v.progress.value > 0)
                 lat = []
                 for _ in range({LATENCY_CALLS}):
-                    t = time.perf_counter(); v.call(lambda: None); lat.append(time.perf_counter() - t)
+                    t = time.perf_counter(); v.call(lambda: None, redraw=False); lat.append(time.perf_counter() - t)
                 res["running_during"] = v.worker.running
                 res["max_latency_s"] = max(lat)
                 t = time.monotonic(); v.call(v._on_cancel)  # the Cancel button's handler
-                th = v.worker.thread; th.join(10)
+                th = v.worker.thread; th.join({STOP_TIMEOUT_S})
                 res["cancel_join_s"] = time.monotonic() - t
                 res["ended_after_cancel"] = not th.is_alive()
                 wait_for(v, "label after cancel", lambda: v.render_label.text == "cancelled", 30)

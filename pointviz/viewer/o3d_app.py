@@ -17,6 +17,7 @@ pushes it into the widgets and the preview scene.
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 
@@ -45,6 +46,10 @@ SUN_INTENSITY_PER_UNIT = 75000.0
 #: Open3D image-based (ambient) light intensity of the preview: dimmer than Open3D's default so
 #: that the sun's direction reads on the splats, like the ray tracer's sky ambient.
 PREVIEW_AMBIENT = 15000.0
+#: Least time between two redraws of the window for the progress bar, seconds. Each redraw of
+#: the whole window keeps the GUI thread (and the software rasteriser's threads) busy for
+#: 20-40 ms idle and 100-250 ms with every core busy: a GUI call arriving meanwhile waits for it.
+PROGRESS_REDRAW_INTERVAL_S = 1.0
 #: Ground quad half size, in scene diagonals.
 GROUND_HALF_SIZE = 2.0
 
@@ -92,6 +97,13 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self._last_view = None
         self._first_tick = None
         self._closing = False
+        # work for the GUI thread that must not force a redraw of the window (progress reports,
+        # ``call(..., redraw=False)``): drained by the tick event. Open3D redraws the whole
+        # window after every ``post_to_main_thread`` function, which under a software
+        # rasteriser costs 20-40 ms of CPU idle and several times that with every core busy
+        self._tick_queue: collections.deque = collections.deque()
+        self._progress_dirty = False
+        self._progress_drawn = 0.0
         self.worker = RenderWorker(self._post_progress, self._post_done, self._post_error)
         self._init_live()
 
@@ -430,7 +442,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             self._update_status()
         if self.job is not None:
             self.tick_times.append(now)
-        redraw = False
+        redraw = self._drain_tick_queue(now)
         view = np.asarray(self.preview.scene.camera.get_view_matrix())
         if self._last_view is None or not np.allclose(view, self._last_view):
             self._last_view = view
@@ -442,6 +454,17 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             self._automate(now)
         self._live_tick()
         return redraw
+
+    def _drain_tick_queue(self, now) -> bool:
+        """Run the queued GUI-thread work; True when the progress bar is due for a redraw (at
+        most once per PROGRESS_REDRAW_INTERVAL_S)."""
+        while self._tick_queue:
+            self._tick_queue.popleft()()
+        if self._progress_dirty and now - self._progress_drawn >= PROGRESS_REDRAW_INTERVAL_S:
+            self._progress_dirty = False
+            self._progress_drawn = now
+            return True
+        return False
 
     def _on_mouse(self, event):
         return self.gui.Widget.EventCallbackResult.IGNORED
@@ -507,7 +530,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             self.app.post_to_main_thread(self.window, fn)
 
     def _post_progress(self, job_id, done, total):
-        self._post(lambda: self._show_progress(job_id, done, total))
+        if not self.closed:  # no redraw of its own: the tick redraws the bar when it is due
+            self._tick_queue.append(lambda: self._show_progress(job_id, done, total))
 
     def _post_done(self, job_id, result):
         self._post(lambda: self._show_result(job_id, result))
@@ -522,6 +546,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
     def _show_progress(self, job_id, done, total) -> None:
         if self._current(job_id):
             self.progress.value = done / max(total, 1)
+            self._progress_dirty = True
 
     def _end_job(self) -> None:
         if self.tick_times:

@@ -18,8 +18,9 @@ from . import model
 #: rasteriser presents the first frames late), and after showing the frame before the grab.
 AUTOMATION_WARMUP_S = 0.6
 AUTOMATION_SETTLE_S = 0.5
-#: Automation: attempts to grab a non-blank screenshot (AUTOMATION_SETTLE_S apart).
-SCREENSHOT_ATTEMPTS = 10
+#: Automation: attempts to grab a non-blank screenshot (AUTOMATION_SETTLE_S apart): 30 s, so
+#: that only a window that never presents its frame gives up (a loaded machine takes seconds).
+SCREENSHOT_ATTEMPTS = 60
 #: A grab whose pixel standard deviation is at most this is blank (nothing presented yet).
 BLANK_STD = 1.0
 
@@ -106,11 +107,23 @@ class AutomationMixin:
         elif a.state == "settle" and now - a.t_state >= AUTOMATION_SETTLE_S:
             a.info["attempts"] = a.info.get("attempts", 0) + 1
             shot = self.screenshot() if a.screenshot else None
-            if shot is not None and shot.std() <= BLANK_STD and a.info["attempts"] < SCREENSHOT_ATTEMPTS:
+            if (shot is not None and self._shows_blank(shot)
+                    and a.info["attempts"] < SCREENSHOT_ATTEMPTS):
+                self.window.post_redraw()
                 self._set_auto_state("settle")  # not presented yet: grab again a bit later
                 return
             self._set_auto_state("done")
             self._finish_automation(shot)
+
+    def _shows_blank(self, shot) -> bool:
+        """True while the grab shows a blank window, or a blank frame panel although a frame
+        is shown there (under load the redraw with the new image reaches the X server late)."""
+        if shot.std() <= BLANK_STD:
+            return True
+        if self.frame is None or not self.result.visible:
+            return False
+        x, y, w, h = self.widget_rects()["result"]
+        return shot[y:y + h, x:x + w].std() <= BLANK_STD
 
     def widget_rects(self) -> dict:
         """Preview, frame and panel rectangles relative to the window's content (pixels)."""
@@ -184,8 +197,13 @@ class AutomationMixin:
         atomic_write_text(a.report, json.dumps(self.report(), indent=2, default=str),
                           overwrite=a.overwrite)
 
-    def call(self, fn, timeout: float = 30.0):
-        """Run ``fn()`` on the GUI thread and return its result (call from another thread)."""
+    def call(self, fn, timeout: float = 30.0, redraw: bool = True):
+        """Run ``fn()`` on the GUI thread and return its result (call from another thread).
+
+        With ``redraw`` (the default) the window is redrawn after ``fn``, so that widget changes
+        show at once; without, ``fn`` runs at the next tick event (every ~10 ms) and the window
+        is not redrawn for it (queries of state, and what changes nothing on screen).
+        """
         box: dict = {}
         done = threading.Event()
 
@@ -196,7 +214,10 @@ class AutomationMixin:
                 box["error"] = exc
             done.set()
 
-        self.app.post_to_main_thread(self.window, run)
+        if redraw:
+            self.app.post_to_main_thread(self.window, run)
+        else:
+            self._tick_queue.append(run)
         if not done.wait(timeout):
             raise TimeoutError(f"GUI thread did not run the call within {timeout} s")
         if "error" in box:
