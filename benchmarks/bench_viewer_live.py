@@ -9,7 +9,9 @@ preview's own rate). A driver thread meanwhile times GUI-thread round trips (``v
 during the live orbit and hold. Anchors, measured in the same run and interleaved with the
 viewer runs: a bare loop of ``render()`` calls on the same built scene (1 spp, shadows, one
 reflection, all cores) at 640x480 and at 320x240 (1/4 of the pixels). Targets: live_fps >= 8 at
-live_resolution >= 1/4, still_spp >= 16.
+live_resolution >= 1/4, still_spp >= 16. Printed ratios (what predicts an idle machine's figures
+from a loaded one): live fps / the bare loop's fps at the same resolution (its frame time
+interpolated between the anchors), and still_spp / (3 s x the bare 640x480 fps).
 
 Run under a display: ``xvfb-run -a -s "-screen 0 1800x1000x24" python
 benchmarks/bench_viewer_live.py [--rounds 2] [--orbit 6]``. Writes
@@ -40,6 +42,8 @@ TARGET_RESOLUTION = 0.25
 TARGET_STILL_SPP = 16
 #: Seconds of bare render() calls per anchor measurement.
 ANCHOR_SECONDS = 4.0
+#: Seconds the camera holds still before still_spp is read (pointviz.viewer.o3d_live.HOLD_S).
+HOLD_S = 3.0
 #: Spacing of the GUI round trips timed during the live orbit, seconds.
 CALL_SPACING_S = 0.05
 
@@ -109,6 +113,15 @@ print("RESULT" + json.dumps(res))
 VARIANTS = (("nice, all cores", 0, ""), ("nice, cores-1", -1, ""))
 
 
+def bare_fps_at(fraction: float, full_fps: float, quarter_fps: float) -> float:
+    """The bare loop's frame rate at ``fraction`` of the viewport's pixels: its frame time
+    interpolated linearly in the pixel count between the two anchors (1/4 and all pixels; the
+    fixed per-frame cost is the intercept), extrapolated below 1/4."""
+    t_full, t_quarter = 1.0 / full_fps, 1.0 / quarter_fps
+    t = t_quarter + (t_full - t_quarter) * (fraction - 0.25) / 0.75
+    return 1.0 / max(t, 1e-9)
+
+
 def run_script(script: str, cwd: Path, env=None) -> dict:
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          timeout=1800, check=False, cwd=cwd, env={**os.environ, **(env or {})})
@@ -143,6 +156,7 @@ def main(argv=None) -> int:
     rows, anchors = [], []
     for _ in range(args.rounds):
         anchors.append(run_script(ANCHOR.format(**fmt, seconds=ANCHOR_SECONDS), work))
+        anchors[-1]["load_average"] = os.getloadavg()[0]
         print("anchor: bare render() loop", {k: round(v, 2) for k, v in anchors[-1].items()},
               "fps", flush=True)
         for name, threads, setup in VARIANTS:
@@ -164,6 +178,9 @@ def main(argv=None) -> int:
     quarter = float(np.median([a[f"{WIDTH // 2}x{HEIGHT // 2}"] for a in anchors]))
     for r in rows:
         r["fps_ratio_to_bare_quarter"] = r["live_fps"] / quarter
+        r["bare_fps_at_live_resolution"] = bare_fps_at(r["live_resolution"], full, quarter)
+        r["fps_ratio_to_bare_same_resolution"] = r["live_fps"] / r["bare_fps_at_live_resolution"]
+        r["still_spp_ratio_to_bare"] = r["still_spp"] / (HOLD_S * full)
         r["meets_targets"] = bool(r["live_fps"] >= TARGET_FPS
                                   and r["live_resolution"] >= TARGET_RESOLUTION
                                   and r["still_spp"] >= TARGET_STILL_SPP)
@@ -180,8 +197,12 @@ def main(argv=None) -> int:
           f"at {WIDTH // 2}x{HEIGHT // 2}")
     for r in rows:
         print(f"{r['variant']:16s} live_fps {r['live_fps']:.2f} ({r['fps_ratio_to_bare_quarter']:.2f}x "
-              f"the bare 1/4-pixel loop) at {r['live_resolution']:.2f}, still_spp "
-              f"{r['still_spp']}, targets {'met' if r['meets_targets'] else 'NOT met'}")
+              f"the bare 1/4-pixel loop; {r['fps_ratio_to_bare_same_resolution']:.2f}x the bare "
+              f"loop's {r['bare_fps_at_live_resolution']:.2f} fps at the same resolution) at "
+              f"{r['live_resolution']:.2f}, still_spp {r['still_spp']} "
+              f"({r['still_spp_ratio_to_bare']:.2f}x the {HOLD_S:.0f} s x bare {WIDTH}x{HEIGHT} fps "
+              f"= {HOLD_S * full:.1f} samples), load {r['load_average']:.1f}, targets "
+              f"{'met' if r['meets_targets'] else 'NOT met'}")
     print(f"wrote {args.out}")
     return 0
 
