@@ -11,8 +11,9 @@ viewer runs: a bare loop of ``render()`` calls on the same built scene (1 spp, s
 reflection, all cores) at 640x480 and at 320x240 (1/4 of the pixels), at normal priority and
 niced as the live view traces. Targets: live_fps >= 8 at
 live_resolution >= 1/4, still_spp >= 16. Printed ratios (what predicts an idle machine's figures
-from a loaded one): live fps / the bare loop's fps at the same resolution (its frame time
-interpolated between the anchors), and still_spp / (3 s x the bare 640x480 fps).
+from a loaded one): live fps / the bare loop's fps at the same resolution (measured right after
+each viewer run at the size its mean resolution traces), and still_spp / (3 s x the bare 640x480
+fps); each also against the niced loop.
 
 Run under a display: ``xvfb-run -a -s "-screen 0 1800x1000x24" python
 benchmarks/bench_viewer_live.py [--rounds 2] [--orbit 6]``. Writes
@@ -100,7 +101,7 @@ ANCHOR = SCENE + """
 import json, time
 res = {{}}
 for nice in (False, True):
-    for w, h in (({w}, {h}), ({w} // 2, {h} // 2)):
+    for w, h in {sizes}:
         cam = pointviz.Camera.fit(model.cloud, width=w, height=h)
         pointviz.render(scene, cam, spp=1, shadows=True, reflections=1)   # trees built, warm
         n, t0 = 0, time.perf_counter()
@@ -120,13 +121,22 @@ def num(x, digits: int = 2) -> str:
     return "n/a" if x is None else f"{x:.{digits}f}"
 
 
-def bare_fps_at(fraction: float, full_fps: float, quarter_fps: float) -> float:
-    """The bare loop's frame rate at ``fraction`` of the viewport's pixels: its frame time
-    interpolated linearly in the pixel count between the two anchors (1/4 and all pixels; the
-    fixed per-frame cost is the intercept), extrapolated below 1/4."""
-    t_full, t_quarter = 1.0 / full_fps, 1.0 / quarter_fps
-    t = t_quarter + (t_full - t_quarter) * (fraction - 0.25) / 0.75
-    return 1.0 / max(t, 1e-9)
+def live_size(fraction: float) -> tuple[int, int]:
+    """The frame size the live view traces at ``fraction`` of the viewport's pixels."""
+    from pointviz.viewer.live import scaled_camera
+    from pointviz import Camera
+
+    cam = scaled_camera(Camera((0, 0, 1), (0, 0, 0), width=WIDTH, height=HEIGHT), fraction)
+    return cam.width, cam.height
+
+
+def anchor(fmt: dict, work: Path, sizes) -> dict:
+    """The bare render() loop's fps at ``sizes``, normal priority and niced ("WxH nice")."""
+    res = run_script(ANCHOR.format(**fmt, seconds=ANCHOR_SECONDS, sizes=tuple(sizes)), work)
+    res["load_average"] = os.getloadavg()[0]
+    print("anchor: bare render() loop", {k: round(v, 2) for k, v in res.items()}, "fps",
+          flush=True)
+    return res
 
 
 def run_script(script: str, cwd: Path, env=None) -> dict:
@@ -145,6 +155,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=1, help="interleaved rounds")
     ap.add_argument("--orbit", type=float, default=6.0, help="orbit seconds (default 6)")
+    ap.add_argument("--all-cores-only", action="store_true",
+                    help="only the all-cores viewer variant (half the run time)")
     ap.add_argument("--size", type=float, default=SIZE, help="surfels (default 1e6)")
     ap.add_argument("--data", type=Path, default=common.default_data_dir())
     ap.add_argument("--out", type=Path, default=HERE / "results" / "viewer" / "live.json")
@@ -162,11 +174,8 @@ def main(argv=None) -> int:
     fmt = dict(here=str(HERE), data=str(args.data), n=n, w=WIDTH, h=HEIGHT)
     rows, anchors = [], []
     for _ in range(args.rounds):
-        anchors.append(run_script(ANCHOR.format(**fmt, seconds=ANCHOR_SECONDS), work))
-        anchors[-1]["load_average"] = os.getloadavg()[0]
-        print("anchor: bare render() loop", {k: round(v, 2) for k, v in anchors[-1].items()},
-              "fps", flush=True)
-        for name, threads, setup in VARIANTS:
+        anchors.append(anchor(fmt, work, ((WIDTH, HEIGHT), (WIDTH // 2, HEIGHT // 2))))
+        for name, threads, setup in VARIANTS[:1] if args.all_cores_only else VARIANTS:
             t = cores if threads == 0 else max(1, cores + threads)
             res = run_script(VIEWER.format(**fmt, setup=setup, spacing=CALL_SPACING_S,
                                            orbit=args.orbit, threads=t), work)
@@ -176,6 +185,11 @@ def main(argv=None) -> int:
                    "gui_p95_ms": float(np.percentile(lat, 95)) if len(lat) else None,
                    "gui_max_ms": float(lat.max()) if len(lat) else None,
                    "load_average": os.getloadavg()[0]}
+            if row["live_resolution"] is not None:  # the bare loop at the same resolution
+                w, h = live_size(row["live_resolution"])
+                same = anchor(fmt, work, ((w, h),))
+                row["bare_fps_at_live_resolution"] = same[f"{w}x{h}"]
+                row["bare_nice_fps_at_live_resolution"] = same[f"{w}x{h} nice"]
             rows.append(row)
             print(f"{name:16s} live_fps {num(row['live_fps'])} at {num(row['live_resolution'])} "
                   f"of the pixels, still_spp {row['still_spp']}, preview_fps "
@@ -192,11 +206,10 @@ def main(argv=None) -> int:
             r["meets_targets"] = False
             continue
         r["fps_ratio_to_bare_quarter"] = r["live_fps"] / quarter
-        r["bare_fps_at_live_resolution"] = bare_fps_at(r["live_resolution"], full, quarter)
         r["fps_ratio_to_bare_same_resolution"] = r["live_fps"] / r["bare_fps_at_live_resolution"]
         r["still_spp_ratio_to_bare"] = r["still_spp"] / (HOLD_S * full)
-        r["fps_ratio_to_bare_nice_same_resolution"] = r["live_fps"] / bare_fps_at(
-            r["live_resolution"], full_nice, quarter_nice)
+        r["fps_ratio_to_bare_nice_same_resolution"] = (r["live_fps"]
+                                                       / r["bare_nice_fps_at_live_resolution"])
         r["still_spp_ratio_to_bare_nice"] = r["still_spp"] / (HOLD_S * full_nice)
         r["meets_targets"] = bool(r["live_fps"] >= TARGET_FPS
                                   and r["live_resolution"] >= TARGET_RESOLUTION
