@@ -230,6 +230,44 @@ def test_resolution_controller_inverts_a_proportional_cost():
     assert c.fraction == pytest.approx(1 / 16)
 
 
+def test_resolution_controller_keeps_a_quarter_of_the_pixels_while_it_makes_min_fps():
+    c = live.ResolutionController(target_fps=10, lo=1 / 16, hi=1, min_fps=8, preferred=0.25)
+    assert c.fraction == 0.25  # before any measurement
+    for _ in range(40):  # 1/4 of the pixels costs 0.12 s: 8.3 fps, short of 10 but above 8
+        c.observe(c.fraction, 0.48 * c.fraction)
+    assert c.fraction == 0.25
+    for _ in range(40):  # 1/4 costs 0.2 s (5 fps): pixels traded for 8 fps, 0.125 s / 0.8 s
+        c.observe(c.fraction, 0.8 * c.fraction)
+    assert c.fraction == pytest.approx(0.125 / 0.8, rel=1e-3)
+    for _ in range(40):  # 1/4 costs 0.05 s: more pixels for 10 fps, 0.1 s / 0.2 s
+        c.observe(c.fraction, 0.2 * c.fraction)
+    assert c.fraction == pytest.approx(0.5, rel=1e-3)
+
+
+@pytest.mark.skipif(not live._denoise_available(), reason="needs the denoise extra")
+def test_a_still_pass_is_shown_before_it_is_denoised(monkeypatch):
+    monkeypatch.setattr(live, "DENOISE_FIRST_SPP", 2)
+    scene, cam = small_scene(), camera(64, 48)
+    lr, frames, errors = collect(scene, threads=2, denoise=True)
+    try:
+        lr.update(cam, dict(OPTS))
+        first = next_frame(frames, lambda f: not f.moving and f.spp >= 2)
+        assert not first.denoised
+        whole = render(scene, cam, spp=first.spp, **OPTS)  # the pass keeps the tracer's mean
+        np.testing.assert_allclose(first.frame.color, whole.color, rtol=ACCUMULATION_RTOL,
+                                   atol=1e-5)
+        den = frames.get(timeout=FRAME_TIMEOUT_S)  # next: the same samples, denoised
+        assert den.denoised and den.spp == first.spp and den.generation == first.generation
+        np.testing.assert_array_equal(den.frame.noisy_color, first.frame.color)
+        assert not np.array_equal(den.frame.color, first.frame.color)
+        later = frames.get(timeout=FRAME_TIMEOUT_S)  # passes after it show the denoised picture
+        assert later.spp > den.spp and later.denoised
+        assert np.array_equal(later.image, den.image)
+    finally:
+        assert lr.shutdown()
+    assert errors.empty()
+
+
 def test_scaled_camera_keeps_the_view():
     cam = camera(640, 480)
     s = live.scaled_camera(cam, 0.25)

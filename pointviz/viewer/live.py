@@ -6,7 +6,8 @@ upscaled to the viewport. Once the camera has held still for STILL_DELAY_S, it t
 resolution in passes that continue one deterministic sample sequence (``render(sample_offset=,
 sequence_spp=)``), so the running mean converges to exactly the frame ``render(spp=N)`` makes;
 the mean is denoised from DENOISE_FIRST_SPP samples on, whenever the count has grown
-DENOISE_GROWTH times.
+DENOISE_GROWTH times, after the pass's own picture has been handed over (so the sample count on
+screen never waits for the denoiser).
 
 A new camera cancels a still pass at once, and a moving frame once it has been stale for
 STALE_MOVING_S (stale frames are cancelled, not finished; a moving frame that is almost done is
@@ -18,6 +19,7 @@ thread, which must only hand them over (``post_to_main_thread``). Nothing here k
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import threading
@@ -28,9 +30,17 @@ import numpy as np
 
 from ..errors import CancelledError
 
-#: Frame rate the moving view aims for (the issue's goal is 8; aiming a bit higher keeps the
-#: measured rate above it when the machine's load changes between frames).
+#: Frame rate the moving view aims for while it can afford more than PREFERRED_FRACTION of the
+#: pixels (aiming a bit above MIN_FPS keeps the measured rate above it when the machine's load
+#: changes between frames).
 TARGET_FPS = 10.0
+#: The frame rate below which the moving view gives up pixels under PREFERRED_FRACTION (the
+#: issue's 8 fps): between MIN_FPS and TARGET_FPS the resolution stays at PREFERRED_FRACTION
+#: rather than trading pixels for frames nobody asked for.
+MIN_FPS = 8.0
+#: Fraction of the viewport's pixels the moving view keeps as long as it runs at MIN_FPS (half
+#: the resolution on each axis: the issue's 1/4 of the pixels).
+PREFERRED_FRACTION = 0.25
 #: Range of the fraction of the viewport's pixels traced while moving. Below 1/16 (a quarter of
 #: the resolution on each axis) the upscaled picture no longer shows the shape.
 MIN_PIXEL_FRACTION = 1.0 / 16.0
@@ -68,31 +78,42 @@ SHUTDOWN_TIMEOUT_S = 10.0
 
 
 class ResolutionController:
-    """Chooses the fraction of the viewport's pixels to trace so a frame takes 1 / target_fps.
+    """Chooses the fraction of the viewport's pixels to trace while the camera moves.
 
     It keeps a smoothed estimate of the seconds one frame costs per unit pixel fraction (the cost
-    of a frame is close to proportional to its pixel count) and inverts it.
+    of a frame is close to proportional to its pixel count) and inverts it: above
+    ``preferred`` it aims at ``target_fps``; it keeps ``preferred`` while that runs at
+    ``min_fps`` or faster, and only below that trades pixels for ``min_fps``.
 
     Parameters
     ----------
     target_fps : float
     lo, hi : float
         Range of the fraction.
+    min_fps : float
+    preferred : float
+        Clipped to [lo, hi].
     """
 
     def __init__(self, target_fps: float = TARGET_FPS, lo: float = MIN_PIXEL_FRACTION,
-                 hi: float = MAX_PIXEL_FRACTION):
+                 hi: float = MAX_PIXEL_FRACTION, min_fps: float = MIN_FPS,
+                 preferred: float = PREFERRED_FRACTION):
         self.target_s = 1.0 / float(target_fps)
+        self.min_s = max(1.0 / float(min_fps), self.target_s)
         self.lo, self.hi = float(lo), float(hi)
+        self.preferred = float(np.clip(preferred, self.lo, self.hi))
         self.cost_per_fraction: float | None = None
-        self.fraction = 0.25 * (lo + hi) if hi > 4 * lo else lo
+        self.fraction = self.preferred
 
     def observe(self, fraction: float, seconds: float) -> float:
         """Record that a frame of ``fraction`` took ``seconds``; return the next fraction."""
         cost = seconds / max(fraction, 1e-9)
         c = self.cost_per_fraction
         self.cost_per_fraction = cost if c is None else (1 - COST_SMOOTHING) * c + COST_SMOOTHING * cost
-        self.fraction = float(np.clip(self.target_s / self.cost_per_fraction, self.lo, self.hi))
+        f = self.target_s / self.cost_per_fraction
+        if f < self.preferred:  # keep the preferred resolution while it makes min_fps
+            f = min(self.preferred, self.min_s / self.cost_per_fraction)
+        self.fraction = float(np.clip(f, self.lo, self.hi))
         return self.fraction
 
 
@@ -310,6 +331,12 @@ class LiveRenderer:
             shown = req.generation
             more = acc is None or acc.spp < MAX_STILL_SPP
             self._on_frame(out)
+            if not moving and acc.denoise_due and not cancel.is_set():
+                try:
+                    self._on_frame(self._denoised(out, acc))
+                except Exception as exc:  # noqa: BLE001 - reported; accumulation goes on
+                    acc.denoise_due, acc.next_denoise = False, MAX_STILL_SPP + 1
+                    self._on_error(exc)
 
     def _scene_and_options(self, settings):
         p = self._prepared
@@ -346,17 +373,26 @@ class LiveRenderer:
         acc.add(frame, n, seconds)
         self.still_passes += 1
         mean = acc.frame(frame)
-        denoised = False
-        if self.denoise and acc.spp >= acc.next_denoise:
-            from ..denoise import denoise_frame
-
-            denoise_frame(mean, LIVE_DENOISE_QUALITY)
-            acc.next_denoise = DENOISE_GROWTH * acc.spp
-            acc.denoised_image = mean.to_srgb8()
-            denoised = True
+        acc.denoise_due = self.denoise and acc.spp >= acc.next_denoise
+        # the pass is shown at once (the denoised picture, if any, of fewer samples until the
+        # first denoising); denoising follows it (:meth:`_denoised`), so its cost never holds
+        # back the sample count on screen
         image = acc.denoised_image if acc.denoised_image is not None else mean.to_srgb8()
         return LiveFrame(image, mean, req.camera, req.generation, False, 1.0, acc.spp,
-                         denoised or acc.denoised_image is not None, seconds)
+                         acc.denoised_image is not None, seconds)
+
+    @staticmethod
+    def _denoised(out: LiveFrame, acc) -> LiveFrame:
+        """``out`` (a still pass) denoised; the accumulation's next denoising is scheduled."""
+        from ..denoise import denoise_frame
+
+        frame = copy.copy(out.frame)  # the shown pass keeps its undenoised buffers
+        denoise_frame(frame, LIVE_DENOISE_QUALITY)
+        acc.next_denoise = DENOISE_GROWTH * acc.spp
+        acc.denoise_due = False
+        acc.denoised_image = frame.to_srgb8()
+        return LiveFrame(acc.denoised_image, frame, out.camera, out.generation, False, 1.0,
+                         out.spp, True, out.seconds)
 
 
 class _StaleToken:
@@ -394,6 +430,7 @@ class _Accumulator:
         self.sums: dict = {}
         self.seconds_per_sample: float | None = None
         self.next_denoise = DENOISE_FIRST_SPP
+        self.denoise_due = False
         self.denoised_image = None
 
     def next_pass_spp(self) -> int:
