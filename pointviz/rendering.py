@@ -112,6 +112,48 @@ def camera_model(camera, origin) -> _core.CameraModel:
     return cm
 
 
+def budget_scale(bounds, camera) -> float:
+    """Factor on the per-pixel error budget of primary rays (``lod_pixels="auto"``): the inverse
+    of an upper bound on the share of the frame's pixels whose rays can reach the objects.
+
+    The budget bounds the frame's *mean* FLIP and the predictor (benchmarks/README.md, "Issue
+    18") is a sum over pixels of per-pixel terms, zero for rays that never meet a tree; so when
+    the objects cover a share c of the frame, each pixel that sees them may take the budget / c.
+    c is bounded by the projection of the bounding sphere of ``bounds`` (an ellipse of area
+    ``pi tan(a)^2 / cos(b)^3`` on the unit image plane, a = the sphere's angular radius, b = its
+    centre's angle off the view axis; its equivalent radius grown by a pixel's diagonal, so that
+    pixels its rim only grazes count), over the image plane's area; 1 when the eye is inside the
+    sphere or the sphere reaches 90 degrees off the axis.
+
+    Parameters
+    ----------
+    bounds : tuple of ndarray, shape (3,), float64
+        Axis-aligned bounds (lo, hi) of every object.
+    camera : Camera
+
+    Returns
+    -------
+    float
+        >= 1.
+    """
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    to_c = centre - np.asarray(camera.eye, dtype=np.float64)
+    dist = float(np.linalg.norm(to_c))
+    if not dist > radius:
+        return 1.0
+    a = np.arcsin(radius / dist)
+    b = np.arccos(np.clip(to_c @ np.asarray(camera.forward, dtype=np.float64) / dist, -1.0, 1.0))
+    if a + b >= 0.5 * np.pi:
+        return 1.0
+    pixel = 2.0 * camera.tan_half / camera.height  # a pixel's side on the unit image plane
+    # the ellipse grown by a pixel's diagonal: every pixel any of whose samples meets the sphere
+    reach = np.sqrt(np.tan(a) ** 2 / np.cos(b) ** 3) + np.sqrt(2.0) * pixel
+    sphere = np.pi * reach ** 2
+    plane = 4.0 * camera.tan_half ** 2 * camera.width / camera.height
+    return float(max(1.0, plane / sphere))
+
+
 def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
            lod_pixels: float | str = DEFAULTS.lod_pixels,
@@ -199,6 +241,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
     rs, origin = scene.to_core(camera, lod_pixels, max_error)
+    if lod_pixels == "auto":
+        rs.set_budget_scale(budget_scale(scene.bounds(), camera))
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
