@@ -161,9 +161,9 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
         (scene builds per worker pid) and ``startup_seconds`` (cluster start or connection and
         scene scatter, included in ``seconds``).
     """
-    from ..distributed import render_frames, scene_spec
+    from ..distributed import render_frames
     from ..images import atomic_write_bytes
-    from ..rendering import _cancel_check
+    from ..rendering import _cancel_check, as_scene
 
     cameras, path_fps = _path_cameras(path, width, height)
     fps = path_fps if fps is None else check_fps(fps)
@@ -182,9 +182,9 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     else:
         raise InputError("progress: expected True, False or a callable(done, total)")
 
-    spec = scene_spec(scene_or_cloud)
+    scene = as_scene(scene_or_cloud)
     w, h = cameras[0]["width"], cameras[0]["height"]
-    manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "scene": spec.key,
+    manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "scene": scene.key,
                 "cameras": _digest(cameras), "settings": settings, "n_frames": len(cameras),
                 "width": w, "height": h}
     out = Path(out_dir)
@@ -206,7 +206,6 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     if scheduler == SERIAL:
         scheduler = None
     if todo and scheduler is None:
-        scene, _ = spec.scene()
         for i in todo:
             if is_cancelled():
                 raise CancelledError("path render cancelled")
@@ -220,7 +219,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
             atomic_write_bytes(files[i], png, overwrite=True)
             return advance()
 
-        res = render_frames(spec, [(i, cameras[i]) for i in todo], render_kwargs, on_frame,
+        res = render_frames(scene, [(i, cameras[i]) for i in todo], render_kwargs, on_frame,
                             scheduler=scheduler, workers=workers, retries=retries,
                             cancel=is_cancelled)
         info = {"scheduler": res["address"], "workers": res["workers"],
