@@ -112,7 +112,7 @@ def resolve_look(look, geometry, up) -> Look:
     if isinstance(look, Look):
         return look
     if look == "auto":
-        from .camera import shape_kind
+        from .framing import shape_kind
         from .geometry import Geometry
         from .surfels import SurfelScene
 

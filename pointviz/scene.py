@@ -127,7 +127,7 @@ class Scene:
     look : {"auto", "studio", "outdoor", "flat"} or Look
         Lights, sky light and occlusion, backdrop and exposure together (see :data:`LOOKS`);
         "auto" picks "outdoor" for a terrain tile and "studio" for an object
-        (:func:`pointviz.camera.shape_kind` of the first cloud).
+        (:func:`pointviz.framing.shape_kind` of the first cloud).
     two_sided : bool
         Show surfels from both sides: the SurfelScenes built here skip the paper's normal-cone
         culling (``cull=False``), which hides open scans (terrain, one-sided scans) seen from

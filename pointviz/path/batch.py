@@ -9,12 +9,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..camera import Camera, _json_dumps, _size, atomic_write_text, read_json_file
+from ..camera import Camera
 from ..errors import CancelledError, FileFormatError, InputError
+from ..files import atomic_write_text, json_text, read_json_file
 from ..frames import frame_png, is_complete_png
 from ..interrupt import stage
 from ..progress import ProgressBar
 from ..settings import RenderSettings
+from ..values import check_image_size as _size
 from .camera_path import CameraPath
 from .keyframes import check_fps
 
@@ -55,7 +57,7 @@ def _path_cameras(path: Any, width: int | None, height: int | None) -> tuple[lis
 
 
 def _digest(obj: Any) -> str:
-    return hashlib.sha256(_json_dumps(obj).encode()).hexdigest()
+    return hashlib.sha256(json_text(obj).encode()).hexdigest()
 
 
 def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
@@ -97,7 +99,7 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
             f.unlink()
     for stale in out.glob(".frame_*.part"):  # left by a process killed mid-write
         stale.unlink()
-    atomic_write_text(mpath, _json_dumps(manifest), overwrite=True)
+    atomic_write_text(mpath, json_text(manifest), overwrite=True)
 
 
 def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
