@@ -18,6 +18,11 @@ from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_int, ch
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
 #: Linux CFS), and the tracer still gets every cycle the GUI leaves.
 BACKGROUND_NICE = 10
+#: Largest factor budget_scale gives. The looks' automatic exposure follows the object's mean
+#: radiance, so what the object's pixels lose moves every pixel of the frame: a 200k striped
+#: torus at 7.5x (160x120) costs FLIP 0.0012 at 16x and 0.029 at 48x (exposure 3.7 % off; at
+#: the full-detail frame's exposure 0.0009).
+MAX_BUDGET_SCALE = 16.0
 
 
 @dataclass
@@ -112,6 +117,61 @@ def camera_model(camera, origin) -> _core.CameraModel:
     return cm
 
 
+def budget_scale(bounds, camera) -> float:
+    """Factor on the per-pixel error budget of primary rays (``lod_pixels="auto"``): the inverse
+    of an upper bound on the share of the frame's pixels whose rays can reach the objects.
+
+    The budget bounds the frame's *mean* FLIP and the predictor (benchmarks/README.md, "Issue
+    18") is a sum over pixels of per-pixel terms, zero for rays that never meet a tree; so when
+    the objects cover a share c of the frame, each pixel that sees them may take the budget / c.
+    c is bounded twice, and the smaller bound kept: by the rectangle around the projected corners
+    of ``bounds`` grown by a pixel and clipped to the frame (when every corner lies in front of
+    the eye), and by the projection of the bounding sphere (an ellipse of area
+    ``pi tan(a)^2 / cos(b)^3`` on the unit image plane, a = the sphere's angular radius, b = its
+    centre's angle off the view axis; its equivalent radius grown by a pixel's diagonal, so that
+    pixels its rim only grazes count) over the image plane's area. 1 when neither applies (the
+    eye inside the sphere, or the sphere reaching 90 degrees off the axis).
+
+    Parameters
+    ----------
+    bounds : tuple of ndarray, shape (3,), float64
+        Axis-aligned bounds (lo, hi) of every object.
+    camera : Camera
+
+    Returns
+    -------
+    float
+        In [1, MAX_BUDGET_SCALE].
+    """
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    eye = np.asarray(camera.eye, dtype=np.float64)
+    fwd = np.asarray(camera.forward, dtype=np.float64)
+    w, h, tan_half = camera.width, camera.height, camera.tan_half
+    share = 1.0
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - eye
+    depth = corners @ fwd
+    if np.all(depth > 0):
+        col = (corners @ np.asarray(camera.right, dtype=np.float64) / depth
+               / (tan_half * w / h) + 1.0) * 0.5 * w
+        row = (1.0 - corners @ np.asarray(camera.true_up, dtype=np.float64) / depth
+               / tan_half) * 0.5 * h
+        cols = np.clip([col.min() - 1.0, col.max() + 1.0], 0.0, w)
+        rows = np.clip([row.min() - 1.0, row.max() + 1.0], 0.0, h)
+        share = (cols[1] - cols[0]) * (rows[1] - rows[0]) / (w * h)
+    to_c = 0.5 * (lo + hi) - eye
+    dist, radius = float(np.linalg.norm(to_c)), 0.5 * float(np.linalg.norm(hi - lo))
+    if dist > radius:
+        a = np.arcsin(radius / dist)
+        b = np.arccos(np.clip(to_c @ fwd / dist, -1.0, 1.0))
+        if a + b < 0.5 * np.pi:
+            pixel = 2.0 * tan_half / h  # a pixel's side on the unit image plane
+            # the ellipse grown by a pixel's diagonal: every pixel a sample of which meets it
+            reach = np.sqrt(np.tan(a) ** 2 / np.cos(b) ** 3) + np.sqrt(2.0) * pixel
+            share = min(share, np.pi * reach ** 2 / (4.0 * tan_half ** 2 * w / h))
+    return float(1.0 / max(share, 1.0 / MAX_BUDGET_SCALE))
+
+
 def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
            lod_pixels: float | str = DEFAULTS.lod_pixels,
@@ -199,6 +259,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
     rs, origin = scene.to_core(camera, lod_pixels, max_error)
+    if lod_pixels == "auto":
+        rs.set_budget_scale(budget_scale(scene.bounds(), camera))
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections

@@ -58,7 +58,7 @@ def test_zero_budget_is_full_detail_exactly(torus_scene):
 
 
 @needs_flip
-@pytest.mark.parametrize("factor", [1.0, 7.5])
+@pytest.mark.parametrize("factor", [1.0, 2.5, 7.5])
 def test_budget_bounds_the_measured_error(torus_scene, factor):
     """Measured mean FLIP against full detail stays within the budget on an analytic scene;
     the plain 1 px rule, which the budget's size share comes from, does not at the far view
@@ -196,3 +196,45 @@ def test_viewer_settings_carry_the_budget():
     assert s.updated(lod_pixels=2.0).max_error is None  # a typed threshold ends the budget
     with pytest.raises(InputError, match="max_error"):
         ViewerSettings(lod_pixels="auto", max_error=-1.0)
+
+
+@pytest.mark.parametrize("eye, target, size", [
+    ((0, 0, 30), (0, 0, 0), (160, 120)),       # far, centred
+    ((0, 0, 6), (0, 0, 0), (160, 120)),        # near, centred
+    ((0, 0, 12), (2.5, 1.5, 0), (200, 100)),   # off the axis, wide frame
+    ((0, 0, 12), (3.0, 0, 0), (120, 160)),     # across the frame's edge, tall frame
+])
+def test_budget_scale_bounds_the_covered_share(eye, target, size):
+    """Primary rays' budget factor is at most the inverse of the share of pixels whose rays meet
+    the bounds (brute force: every pixel's corner and centre rays against the box, slab test),
+    and not far below it (the bound is the projected box's rectangle, not a looser one)."""
+    from pointviz.rendering import MAX_BUDGET_SCALE, budget_scale
+
+    lo, hi = np.array([-1.0, -0.6, -0.3]), np.array([1.0, 0.6, 0.3])
+    w, h = size
+    cam = pointviz.Camera.look_at(eye, target, width=w, height=h)
+    hit = np.zeros((h, w), dtype=bool)
+    for uv in ((0.5, 0.5), (0.0, 0.0), (0.999, 0.0), (0.0, 0.999), (0.999, 0.999)):
+        rays = cam.rays(samples=uv, dtype=np.float64).reshape(-1, 6)
+        o, d = rays[:, :3], rays[:, 3:]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (lo - o) / d, (hi - o) / d
+        tnear = np.nanmax(np.minimum(t0, t1), axis=1)
+        tfar = np.nanmin(np.maximum(t0, t1), axis=1)
+        hit |= ((tnear <= tfar) & (tfar > 0)).reshape(h, w)
+    share = hit.mean()
+    scale = budget_scale((lo, hi), cam)
+    assert share > 0
+    assert scale >= 1.0
+    assert scale * share <= 1.0 + 1e-9
+    assert scale * share > 0.4 or scale in (1.0, MAX_BUDGET_SCALE)
+
+
+def test_budget_scale_is_one_inside_the_bounds_or_beside_them():
+    from pointviz.rendering import budget_scale
+
+    lo, hi = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    inside = pointviz.Camera.look_at((0, 0, 0.5), (0, 0, -1), width=64, height=48)
+    beside = pointviz.Camera.look_at((0, 0, 3), (0, 0, 10), width=64, height=48)  # behind it
+    assert budget_scale((lo, hi), inside) == 1.0
+    assert budget_scale((lo, hi), beside) == 1.0

@@ -270,6 +270,7 @@ struct PyRenderScene {
     RenderScene scene;
     std::vector<nb::object> keep_alive;
     std::vector<PyGeometry *> callbacks;
+    std::vector<std::shared_ptr<SurfelGeometry>> surfel_trees;   ///< for set_budget_scale
 };
 
 /// Renders on a worker thread (run_with_progress): `poll(tiles_done, tiles_total)` reports
@@ -444,6 +445,7 @@ NB_MODULE(_core, m) {
         .def_rw("lod_criterion", &TraceOptions::lod_criterion)
         .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
         .def_rw("max_error", &TraceOptions::max_error)
+        .def_rw("budget_scale", &TraceOptions::budget_scale)
         .def_rw("isa", &TraceOptions::isa);
 
     nb::class_<CameraModel>(m, "CameraModel")
@@ -527,10 +529,16 @@ NB_MODULE(_core, m) {
             std::shared_ptr<Geometry> g;
             if (nb::isinstance<KdTree>(tree_obj))
                 g = std::make_shared<KdGeometry>(nb::cast<const KdTree *>(tree_obj), opt, offset);
-            else
-                g = std::make_shared<SurfelGeometry>(nb::cast<const SurfelTree *>(tree_obj), opt, offset);
+            else {
+                auto sg = std::make_shared<SurfelGeometry>(nb::cast<const SurfelTree *>(tree_obj), opt, offset);
+                s.surfel_trees.push_back(sg);
+                g = sg;
+            }
             s.scene.objects.push_back({g, mat});
         }, "tree"_a, "options"_a, "offset"_a, "material"_a)
+        .def("set_budget_scale", [](PyRenderScene &s, float scale) {
+            for (auto &g : s.surfel_trees) g->set_budget_scale(scale);
+        }, "scale"_a)
         .def("add_callback", [](PyRenderScene &s, nb::object obj, const Material &mat) {
             auto g = std::make_shared<PyGeometry>(obj);
             s.callbacks.push_back(g.get());

@@ -575,16 +575,16 @@ void test_lod_budget() {
     }
     CHECK(grey > 0, "no uniformly coloured node in the test tree");
 
-    // The budget: 0 never stops; a flat grey node within the extent stops; too wide never.
+    // The budget (max_error minus the floor): max_error 0 never stops; a flat grey node within the extent stops; too wide never.
     Node flat{};
     flat.radius = radius_with_byte(1.f, 0);
     flat.cone_q = uint16_t(std::ceil(kConeSlack * kConeScale));
-    CHECK(!budget_allows(flat, 1.f, 0.f, 1.f), "budget 0 stopped a node");
-    CHECK(budget_allows(flat, 1.f, 0.005f, 0.f), "budget 0.005 refused a flat grey node");
-    CHECK(!budget_allows(flat, 2.f / (kBudgetMaxExtent * 1.01f), 1.f, 0.f), "stopped beyond the extent");
+    CHECK(!budget_allows(flat, 1.f, -kBudgetFloor, 1.f), "budget 0 stopped a node");
+    CHECK(budget_allows(flat, 1.f, 0.005f - kBudgetFloor, 0.f), "budget 0.005 refused a flat grey node");
+    CHECK(!budget_allows(flat, 2.f / (kBudgetMaxExtent * 1.01f), 1.f - kBudgetFloor, 0.f), "stopped beyond the extent");
     Node striped = flat;
     striped.radius = radius_with_byte(1.f, 60);
-    CHECK(!budget_allows(striped, 10.f, 0.005f, 1.f), "colour-spread node stopped by the size share");
+    CHECK(!budget_allows(striped, 10.f, 0.005f - kBudgetFloor, 1.f), "colour-spread node stopped by the size share");
 
     // Rays through the budget traversal stay clean (finite, unit normals, in range); with
     // max_error 0 they equal full detail exactly.

@@ -35,6 +35,8 @@ public:
     void occluded(const Ray *rays, size_t n, uint8_t *hit) const override {
         kernels_.occlude(*tree_, rays, n, offset_, opt_, hit);
     }
+    /// Sets TraceOptions::budget_scale (before a render starts: not while it runs).
+    void set_budget_scale(float s) { opt_.budget_scale = s; }
 
 private:
     const SurfelTree *tree_;

@@ -36,17 +36,18 @@ inline float predicted_error(const Node &nd) {
 }
 
 /// Whether the budget allows stopping at `nd`, seen with footprint `fp` (ray width at its
-/// centre), `size_pixels` being the size rule's share (nodes below that many footprints stop
+/// centre), `budget` the error the pixel may take above the floor (max_error - kBudgetFloor,
+/// times TraceOptions::budget_scale for primary rays), `size_pixels` being the size rule's share (nodes below that many footprints stop
 /// on their colour term alone; 0: none):
 /// * never above kBudgetMaxExtent footprints (the calibrated range);
-/// * never when the colour term alone exceeds what `max_error` leaves above the floor: averaging
+/// * never when the colour term alone exceeds the budget: averaging
 ///   a node's colours is what a 1-spp frame sees as error even below a pixel (a striped torus
 ///   at 7.5x: FLIP 0.035 under the plain 1 px size rule);
 /// * below `size_pixels` footprints the normal spread is not counted: the pixel averages it
 ///   (the 1 px size rule costs at most 0.0026 on uncoloured scenes, SIZE_RULE_ERROR in Python);
 /// * above, the whole predicted error must fit.
-inline bool budget_allows(const Node &nd, float fp, float max_error, float size_pixels) {
-    const float size = 2.f * nd.radius, budget = max_error - kBudgetFloor;
+inline bool budget_allows(const Node &nd, float fp, float budget, float size_pixels) {
+    const float size = 2.f * nd.radius;
     if (!(size <= kBudgetMaxExtent * fp)) return false;
     const float colour = kBudgetScale * kColourWeight * nd.colour_spread();
     if (colour > budget) return false;

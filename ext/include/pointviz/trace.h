@@ -45,6 +45,11 @@ struct TraceOptions {
     LodCriterion lod_criterion = LodCriterion::Size;
     float lod_max_extent = 8.f;  ///< Deviation only: never stop at nodes wider than this many footprints
     float max_error = 0.f;       ///< Budget only: mean FLIP the frame may lose to LoD (lod.h)
+    /// Budget only: factor on the per-pixel budget of primary rays, the inverse of the share of
+    /// the frame's pixels that may see the tree at all (the budget bounds the frame's mean, and
+    /// pixels that miss the tree cost nothing); 1: every pixel may. Secondary rays keep 1: what
+    /// they change (shadows on the ground) is not confined to those pixels.
+    float budget_scale = 1.f;
     Isa isa = Isa::Auto;      ///< kernels of the batch queries (dispatch.h); all give the same results
 };
 
@@ -57,8 +62,10 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
         // Secondary rays (they start with a width) skip the size rule's share: its nodes may
         // tilt by anything, and one at the ray's origin would shadow the surface it leaves. The
         // budget's own nodes deviate from their plane by under 1 % of their size.
-        return budget_allows(nd, ray.footprint(t2), opt.max_error,
-                             ray.width0 > 0.f ? 0.f : opt.lod_pixels);
+        const bool secondary = ray.width0 > 0.f;
+        return budget_allows(nd, ray.footprint(t2),
+                             (opt.max_error - kBudgetFloor) * (secondary ? 1.f : opt.budget_scale),
+                             secondary ? 0.f : opt.lod_pixels);
     }
     const float fp = opt.lod_pixels * ray.footprint(t2);
     if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
