@@ -81,9 +81,7 @@ def throughput(scene, args, settings) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         # warm-up: build the trees in this process so the serial time is rendering only
         t0 = time.perf_counter()
-        from pointviz.distributed import scene_spec
-
-        scene_spec(scene)
+        scene.build()
         print(f"tree build (serial process): {time.perf_counter() - t0:.2f} s")
         serial = render_path(scene, path, Path(tmp) / "serial", progress=False, **settings)
         cluster = render_path(scene, path, Path(tmp) / "cluster", scheduler="local",

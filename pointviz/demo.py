@@ -11,13 +11,18 @@ import html
 import json
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
+
+from .commands.common import add_setting_option
+from .settings import RenderSettings
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pointviz.demo", description=__doc__)
     parser.add_argument("--out", default="out", help="output folder (default: out)")
-    parser.add_argument("--spp", type=int, default=4)
+    spp = next(f for f in fields(RenderSettings) if f.name == "spp")
+    add_setting_option(parser, spp)  # flag, default and help from RenderSettings
     parser.add_argument("--detail", type=float, default=1.0, help="surfel density multiplier")
     parser.add_argument("--no-compare", action="store_true",
                         help="skip the comparison report (surfels vs reconstructed meshes)")

@@ -4,15 +4,16 @@ How the work is split
 ---------------------
 * Every frame is one task, submitted with ``retries=`` so that a failed task is re-run, and a
   task on a worker that dies is rescheduled by the scheduler on another worker.
-* The scene travels to each worker **once**: the client reduces it to a :class:`SceneSpec`
-  (the clouds' arrays with their normals and radii already estimated, the surfel options,
-  materials, lights, ground, sky) and scatters it with ``broadcast=True``. Tasks receive the
-  scattered object from the worker's own memory; the first task on a worker builds the C++
-  trees from it and keeps them *on that object* (:meth:`SceneSpec.scene`), so the tree is built
-  once per worker process and reused by every later frame on it. A worker that joins later
-  (e.g. restarted by its nanny) fetches the spec from a peer, once.
-* The spec records the client's pointviz version and a digest of its compiled core; a worker
-  running another build refuses (its frames would not match).
+* The scene travels to each worker **once**: the client scatters the
+  :class:`~pointviz.scene.Scene` itself with ``broadcast=True``; it pickles without its C++
+  trees (the clouds' arrays with their normals and radii already estimated, the surfel
+  options, materials, lights, ground, sky). Tasks receive the scattered object from the
+  worker's own memory; the first task on a worker builds the trees *on that object*
+  (:meth:`Scene.build`), so a tree is built once per worker process and reused by every later
+  frame on it. A worker that joins later (e.g. restarted by its nanny) fetches the scene from
+  a peer, once.
+* Every task carries the client's pointviz version and a digest of its compiled core; a
+  worker running another build refuses (its frames would not match).
 * Workers return PNG bytes; the client writes the files, so workers need no shared file system
   and the resume logic of :func:`pointviz.render_path` stays on one machine.
 
@@ -22,17 +23,14 @@ to a serial render of the same scene and settings.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
-import threading
 import time
+import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
-
-import numpy as np
 
 from .errors import CancelledError, InputError, PointvizError, require
-from .geometry import Geometry
 from .interrupt import stage
 from .settings import check_int
 
@@ -46,90 +44,14 @@ CONNECT_TIMEOUT_S = 60.0
 POLL_INTERVAL_S = 0.2
 
 
-@dataclass
-class _ObjectSpec:
-    """One scene object: a cloud (normals and radii already estimated) or a callback geometry."""
-
-    geometry: object
-    material: object
-    surfel_kwargs: dict | None  # None: callback geometry, sent as is
-
-
-@dataclass
-class SceneSpec:
-    """A picklable description of a :class:`~pointviz.scene.Scene`, rebuilt where it is used.
-
-    Attributes
-    ----------
-    key : str
-        SHA-256 of everything that affects the image (arrays, options, materials, lights).
-    """
-
-    key: str
-    core: str
-    objects: list
-    lights: list | None
-    ground: object
-    background: tuple | None
-    up: tuple
-    ambient: float
-    sky: dict
-    look: object = None
-    _built: object = field(default=None, repr=False, compare=False)
-    _lock: object = field(default=None, repr=False, compare=False)
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_built"] = None  # trees never travel: they are rebuilt on each worker
-        state["_lock"] = None
-        return state
-
-    def scene(self):
-        """The Scene, built (C++ trees included) on first call in this process, then reused.
-
-        Returns
-        -------
-        (Scene, bool)
-            The scene and whether this call built it.
-        """
-        if self._lock is None:
-            self._lock = threading.Lock()
-        with self._lock:
-            if self._built is not None:
-                return self._built, False
-            self._built = self._build()
-            return self._built, True
-
-    def _build(self):
-        from .scene import Scene
-        from .surfels import SurfelScene
-
-        here = core_identity()
-        if here != self.core:
-            raise PointvizError(
-                f"worker pid {os.getpid()}: its pointviz core ({here}) differs from the client's "
-                f"({self.core}); frames would not match a serial render: install the same "
-                f"pointviz build on every worker")
-        geoms = []
-        for obj in self.objects:
-            if obj.surfel_kwargs is None:
-                geoms.append(obj.geometry)
-                continue
-            geoms.append(SurfelScene(obj.geometry, **obj.surfel_kwargs))
-        scene = Scene(geoms, lights=self.lights,
-                      ground="none" if self.ground is None else self.ground,
-                      background="sky" if self.background is None else self.background,
-                      materials=[o.material for o in self.objects], up=self.up,
-                      ambient=self.ambient, sky=self.sky or None,
-                      look="auto" if self.look is None else self.look)
-        for i in range(len(geoms)):
-            if self.objects[i].surfel_kwargs is not None:
-                scene.surfel_scene(i)  # build now, so the first frame's time is the render's
-        return scene
-
-
 def core_identity() -> str:
-    """pointviz version and a digest of the compiled core's file: workers must match the client."""
+    """pointviz version and a digest of the compiled core's file: workers must match the client.
+    Read once per process (the core cannot change under a running process)."""
+    return _core_identity()
+
+
+@functools.cache
+def _core_identity() -> str:
     from . import __version__, _core
 
     with open(_core.__file__, "rb") as f:
@@ -137,81 +59,48 @@ def core_identity() -> str:
     return f"{__version__}+{digest}"
 
 
-def _hash_array(h, arr) -> None:
-    if arr is None:
-        h.update(b"none")
-        return
-    a = np.ascontiguousarray(arr)
-    h.update(f"{a.dtype.str}{a.shape}".encode())
-    h.update(a.tobytes())
+def scene_spec(scene_or_cloud):
+    """Deprecated: the :class:`~pointviz.scene.Scene` itself now pickles without its trees.
 
-
-def _callback_digest(geometry) -> str:
-    """A content digest of a callback geometry: its pickle when it has one (meshes do), else
-    its identity (then a resumed path render cannot tell it is the same geometry)."""
-    import pickle
-
-    try:
-        return "callback:" + hashlib.sha256(pickle.dumps(geometry)).hexdigest()
-    except Exception:  # noqa: BLE001 - unpicklable objects fall back to identity
-        return f"callback-id:{type(geometry).__qualname__}:{id(geometry)}"
-
-
-def _surfel_settings(ss) -> dict:
-    """Constructor kwargs that rebuild SurfelScene ``ss`` identically (its origin included)."""
-    kwargs = ss.settings
-    kwargs["origin"] = tuple(float(v) for v in kwargs["origin"])
-    kwargs["threads"] = None  # each worker uses its own cores
-    return kwargs
-
-
-def scene_spec(scene_or_cloud) -> SceneSpec:
-    """Reduce a scene (or cloud) to a picklable :class:`SceneSpec` with a content hash.
-
-    Normals and radii are estimated here, once, so that every worker renders the same surfels.
-    The SurfelScene trees are built here too when the scene had not built them yet (the serial
-    render needs them anyway, and the origin of each tree is part of the spec).
+    Returns :func:`pointviz.rendering.as_scene` of the argument, with its content hash
+    (``scene.key``) computed.
     """
     from .rendering import as_scene
-    from .surfels import SurfelScene
 
+    warnings.warn("pointviz.distributed.scene_spec() is deprecated: pass the Scene itself "
+                  "(it pickles without its trees; its content hash is Scene.key)",
+                  DeprecationWarning, stacklevel=2)
     scene = as_scene(scene_or_cloud)
-    h = hashlib.sha256()
-    objects = []
-    for i, obj in enumerate(scene.objects):
-        g = obj.geometry
-        if isinstance(g, SurfelScene) or not isinstance(g, Geometry):  # surfels or a cloud
-            ss = scene.surfel_scene(i)
-            cloud = ss.cloud
-            _ = cloud.normals, cloud.radii  # estimate once, on the client
-            kwargs = _surfel_settings(ss)
-            for name in ("points", "normals", "radii", "colors"):
-                _hash_array(h, getattr(cloud, name, None))
-            h.update(repr(sorted(kwargs.items())).encode())
-            objects.append(_ObjectSpec(cloud, obj.material, kwargs))
-        else:
-            h.update(_callback_digest(g).encode())
-            objects.append(_ObjectSpec(g, obj.material, None))
-        h.update(repr(obj.material).encode())
-    rest = (scene.lights, scene.ground, scene.background, tuple(float(v) for v in scene.up),
-            scene.ambient, sorted(scene.sky.items()), scene.look)
-    h.update(repr(rest).encode())
-    return SceneSpec(h.hexdigest(), core_identity(), objects, scene.lights, scene.ground, scene.background,
-                     tuple(float(v) for v in scene.up), float(scene.ambient), dict(scene.sky),
-                     scene.look, _built=scene)
+    _ = scene.key
+    return scene
 
 
-def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -> tuple[bytes, dict]:
+def __getattr__(name: str):
+    if name == "SceneSpec":  # the picklable scene description, now the Scene itself
+        from .scene import Scene
+
+        warnings.warn("pointviz.distributed.SceneSpec is deprecated: use pointviz.Scene "
+                      "(it pickles without its trees)", DeprecationWarning, stacklevel=2)
+        return Scene
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def render_frame_task(scene, camera_dict: dict, render_kwargs: dict,
+                      core: str | None = None) -> tuple[bytes, dict]:
     """One frame on a worker: PNG bytes and where/how it was made.
 
     Parameters
     ----------
-    spec : SceneSpec
-        The scattered scene (built into C++ trees on this worker's first frame).
+    scene : Scene
+        The scattered scene (its C++ trees are built on this worker's first frame, then
+        reused by every later frame in this process).
     camera_dict : dict
         :meth:`Camera.to_dict` of the frame's camera.
     render_kwargs : dict
         Keyword arguments of :func:`pointviz.render`.
+    core : str, optional
+        The client's :func:`core_identity`: a worker running another build refuses (its
+        frames would not match a serial render).
 
     Returns
     -------
@@ -221,8 +110,13 @@ def render_frame_task(spec: SceneSpec, camera_dict: dict, render_kwargs: dict) -
     from .camera import Camera
     from .frames import frame_png
 
+    if core is not None and core != core_identity():
+        raise PointvizError(
+            f"worker pid {os.getpid()}: its pointviz core ({core_identity()}) differs from the "
+            f"client's ({core}); frames would not match a serial render: install the same "
+            f"pointviz build on every worker")
     start = time.perf_counter()
-    scene, built = spec.scene()
+    built = scene.build() > 0  # so the first frame's time is the build's, then the render's
     png = frame_png(scene, Camera.from_dict(camera_dict), render_kwargs)
     return png, {"pid": os.getpid(), "built": built, "seconds": time.perf_counter() - start}
 
@@ -259,7 +153,7 @@ def _connect(scheduler, workers: int):
                      f"dask.distributed.Client, got {type(scheduler).__name__}")
 
 
-def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: dict,
+def render_frames(scene, jobs: list[tuple[int, dict]], render_kwargs: dict,
                   on_frame: Callable[[int, bytes, dict], object], *, scheduler,
                   workers: int = DEFAULT_WORKERS, retries: int = DEFAULT_RETRIES,
                   cancel: Callable[[], bool] | None = None) -> dict:
@@ -267,7 +161,8 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
 
     Parameters
     ----------
-    spec : SceneSpec
+    scene : Scene
+        Sent to every worker once (see the module's notes).
     jobs : list of (int, dict)
         Frame index and camera dict of each frame to render.
     render_kwargs : dict
@@ -304,11 +199,12 @@ def render_frames(spec: SceneSpec, jobs: list[tuple[int, dict]], render_kwargs: 
         if n_workers == 0:
             raise PointvizError(f"scheduler: {client.scheduler.address} has no workers")
         stage("cluster")
-        remote = client.scatter(spec, broadcast=True, hash=False)
+        remote = client.scatter(scene, broadcast=True, hash=False)
         stage("scattered")
         startup = time.perf_counter() - start
-        futures = [client.submit(render_frame_task, remote, cam, render_kwargs,
-                                 key=f"pointviz-frame-{spec.key[:12]}-{index:05d}-{os.getpid()}",
+        core = core_identity()
+        futures = [client.submit(render_frame_task, remote, cam, render_kwargs, core,
+                                 key=f"pointviz-frame-{scene.key[:12]}-{index:05d}-{os.getpid()}",
                                  retries=int(retries), pure=False)
                    for index, cam in jobs]
         index_of = {f.key: index for f, (index, _) in zip(futures, jobs)}

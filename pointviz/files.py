@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any
 
-from .errors import InputError
+from .errors import FileFormatError, InputError
 from .interrupt import stage
 
 _UMASK_LOCK = threading.Lock()
@@ -90,3 +92,22 @@ def atomic_write_bytes(path, data: bytes, overwrite: bool = False) -> Path:
 def atomic_write_text(path, text: str, overwrite: bool = False) -> Path:
     """UTF-8 text version of :func:`atomic_write_bytes`."""
     return atomic_write_bytes(path, text.encode("utf-8"), overwrite)
+
+
+def read_json_file(path: str | os.PathLike) -> Any:
+    """Parse a JSON file, raising FileFormatError naming the file when it is missing or invalid."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(f"{os.fspath(path)}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{os.fspath(path)}: cannot read: {exc}") from exc
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"{os.fspath(path)}: invalid JSON: {exc}") from exc
+
+
+def json_text(data) -> str:
+    """``data`` as the project's JSON files hold it: indented, NaN refused, newline-terminated."""
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"

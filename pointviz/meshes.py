@@ -90,6 +90,10 @@ class MeshGeometry:
         self._frames: dict[bytes, LocalMesh] = {}
         self.build_seconds = 0.0
 
+    def __reduce__(self):
+        """Pickle as the arrays: the Embree scenes are rebuilt where the mesh is used."""
+        return (_mesh, (self.vertices, self.faces, self.vertex_colors, self.smooth, self.name))
+
     # -- the callback-geometry protocol ------------------------------------------------------
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) axis-aligned bounds of the vertices faces use."""
@@ -163,6 +167,10 @@ class MeshGeometry:
     def __repr__(self) -> str:
         return (f"MeshGeometry({len(self.vertices)} vertices, {len(self.faces)} faces, "
                 f"{'smooth' if self.smooth else 'flat'})")
+
+
+def _mesh(vertices, faces, vertex_colors, smooth, name) -> MeshGeometry:
+    return MeshGeometry(vertices, faces, vertex_colors, smooth=smooth, name=name)
 
 
 class LocalMesh:

@@ -7,7 +7,12 @@ scene with a mesh backend in place of the surfels renders with identical shading
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+import hashlib
+import pickle
+import threading
+from collections.abc import Mapping
+from dataclasses import FrozenInstanceError, dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -20,300 +25,92 @@ from .extent import (  # noqa: F401 - public here too
     cloud_extent,
 )
 from .geometry import Geometry
+from .lights import AreaLight, DirectionalLight, PointLight
+from .looks import (  # noqa: F401 - public here too
+    BACKDROP_FADE,
+    COMPARE_LOOK,
+    LOOKS,
+    Look,
+    default_lights,
+    resolve_look,
+)
+from .materials import GROUND_MATERIALS, Material
+from .values import in_range as _in_range
+from .values import rgb as _rgb
+from .values import unit as _unit
 
 _Y_UP = (0.0, 1.0, 0.0)
 
 
-def _rgb(value, name: str) -> tuple[float, float, float]:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.shape != (3,) or not np.isfinite(arr).all() or (arr < 0).any():
-        raise InputError(f"{name}: expected three finite non-negative numbers, got {value!r}")
-    return tuple(float(v) for v in arr)
-
-
-def _unit(value, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    if arr.shape != (3,) or not np.isfinite(arr).all():
-        raise InputError(f"{name}: expected three finite numbers, got {value!r}")
-    n = np.linalg.norm(arr)
-    if not n > 0:
-        raise InputError(f"{name}: must not be the zero vector")
-    return arr / n
-
-
-def _in_range(value, name: str, lo: float, hi: float) -> float:
-    v = float(value)
-    if not (np.isfinite(v) and lo <= v <= hi):
-        raise InputError(f"{name}: expected a number in [{lo}, {hi}], got {value!r}")
-    return v
-
-
 @dataclass(frozen=True)
-class Material:
-    """Surface appearance (linear RGB).
-
-    Parameters
-    ----------
-    color : (3,) float
-        Base colour; multiplied by per-point colours when ``use_point_colors`` and the cloud has
-        them.
-    diffuse, specular : float
-        Lambert and Blinn–Phong weights; ``shininess`` is the lobe exponent.
-    mirror : float in [0, 1]
-        Reflectivity; ``roughness`` > 0 blurs reflections (glossy).
-    checker, checker_size : optional
-        Ground only: second colour and cell size of a checkerboard.
-    """
-
-    color: tuple = (0.7, 0.7, 0.7)
-    use_point_colors: bool = True
-    diffuse: float = 1.0
-    specular: float = 0.15
-    shininess: float = 48.0
-    mirror: float = 0.0
-    roughness: float = 0.0
-    checker: tuple | None = None
-    checker_size: float = 0.0
-
-    def __post_init__(self):
-        _rgb(self.color, "material.color")
-        _in_range(self.mirror, "material.mirror", 0.0, 1.0)
-        _in_range(self.roughness, "material.roughness", 0.0, 1.0)
-        _in_range(self.diffuse, "material.diffuse", 0.0, 10.0)
-        _in_range(self.specular, "material.specular", 0.0, 10.0)
-        _in_range(self.shininess, "material.shininess", 0.0, 1e4)
-        _in_range(self.checker_size, "material.checker_size", 0.0, 1e30)
-
-    @classmethod
-    def matte(cls, color=(0.8, 0.8, 0.8), **kw) -> Material:
-        return cls(color=color, specular=0.05, **kw)
-
-    @classmethod
-    def glossy(cls, color=(0.8, 0.8, 0.8), **kw) -> Material:
-        return cls(color=color, specular=0.4, shininess=96.0, mirror=0.25, roughness=0.08, **kw)
-
-    @classmethod
-    def reflective(cls, color=(0.9, 0.9, 0.9), mirror=0.85, **kw) -> Material:
-        return cls(color=color, specular=0.0, mirror=mirror, **kw)
-
-    def to_core(self) -> _core.Material:
-        m = _core.Material()
-        m.base_color = _rgb(self.color, "material.color")
-        m.use_point_colors = bool(self.use_point_colors)
-        m.diffuse = float(self.diffuse)
-        m.specular = float(self.specular)
-        m.shininess = float(self.shininess)
-        m.mirror = float(self.mirror)
-        m.roughness = float(self.roughness)
-        if self.checker is not None and self.checker_size > 0:
-            m.checker = _rgb(self.checker, "material.checker")
-            m.checker_size = float(self.checker_size)
-        return m
-
-
-#: Ground presets by name (the CLI's ``--ground``).
-GROUND_MATERIALS = {
-    "matte": Material(color=(0.35, 0.35, 0.34), specular=0.02, use_point_colors=False),
-    "mirror": Material(color=(0.6, 0.6, 0.62), specular=0.0, mirror=0.6, use_point_colors=False),
-    "glossy": Material(color=(0.7, 0.7, 0.7), specular=0.2, mirror=0.3, roughness=0.05,
-                       use_point_colors=False),
-}
-
-
-@dataclass(frozen=True)
-class DirectionalLight:
-    """Light from far away. ``direction`` points toward the light; ``angle_deg`` is its angular
-    radius (0: hard shadows; the sun is 0.27)."""
-
-    direction: tuple = (0.4, 1.0, 0.6)
-    color: tuple = (1.0, 1.0, 1.0)
-    intensity: float = 1.0
-    angle_deg: float = 2.0
-    shadows: bool = True
-
-    def to_core(self) -> _core.Light:
-        light = _core.Light()
-        light.cast_shadows = bool(self.shadows)
-        light.type = _core.LightType.directional
-        light.direction = tuple(_unit(self.direction, "light.direction"))
-        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
-        light.angle = np.radians(_in_range(self.angle_deg, "light.angle_deg", 0.0, 45.0))
-        return light
-
-
-@dataclass(frozen=True)
-class PointLight:
-    """Light from a point (``radius`` > 0: a spherical light, soft shadows); inverse-square."""
-
-    position: tuple = (0.0, 2.0, 0.0)
-    color: tuple = (1.0, 1.0, 1.0)
-    intensity: float = 1.0
-    radius: float = 0.0
-
-    def to_core(self, origin) -> _core.Light:
-        light = _core.Light()
-        light.type = _core.LightType.point
-        light.position = tuple(np.asarray(self.position, dtype=np.float64) - origin)
-        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
-        light.radius = _in_range(self.radius, "light.radius", 0.0, 1e30)
-        return light
-
-
-@dataclass(frozen=True)
-class AreaLight:
-    """A parallelogram light with corner ``corner`` and edges ``edge_u``, ``edge_v``: soft
-    shadows. ``intensity`` is the total, as for a point light at the same place."""
-
-    corner: tuple = (-0.5, 2.0, -0.5)
-    edge_u: tuple = (1.0, 0.0, 0.0)
-    edge_v: tuple = (0.0, 0.0, 1.0)
-    color: tuple = (1.0, 1.0, 1.0)
-    intensity: float = 1.0
-
-    def to_core(self, origin) -> _core.Light:
-        light = _core.Light()
-        light.type = _core.LightType.area
-        light.position = tuple(np.asarray(self.corner, dtype=np.float64) - origin)
-        light.edge_u = tuple(np.asarray(self.edge_u, dtype=np.float64))
-        light.edge_v = tuple(np.asarray(self.edge_v, dtype=np.float64))
-        if not np.linalg.norm(np.cross(light.edge_u, light.edge_v)) > 0:
-            raise InputError("light.edge_u, light.edge_v: must span a parallelogram")
-        light.color = tuple(np.asarray(_rgb(self.color, "light.color")) * float(self.intensity))
-        return light
-
-
-@dataclass(frozen=True)
-class Look:
-    """A named lighting set-up: what makes a mostly one-colour scan readable is light.
-
-    Lights are placed relative to the camera at render time (so every view is lit from the
-    front-left), lengths relative to the scene's bounding radius.
-
-    Parameters
-    ----------
-    name : str
-    ambient : float
-        Strength of the sky's ambient light.
-    occlusion : float
-        Length of the sky-visibility (ambient occlusion) rays, in bounding radii; 0: none.
-    key, key_angle_deg, key_elevation : float
-        Intensity, angular radius (soft shadows) and height (the up component of its direction,
-        before normalisation) of the key light over the camera's left shoulder; 0: no key.
-    fill : float
-        Intensity of a shadowless fill light from the camera's right; 0: none.
-    sky : dict or None
-        Sky colours (see :class:`Scene`); None: the default blue-grey gradient.
-    background : (3,) float or None
-        What primary rays that miss show; None: the sky (or the backdrop's colour).
-    backdrop : bool
-        The ground fades into a plain background beyond BACKDROP_FADE bounding radii (a studio
-        cyclorama: no horizon line), the background matching the lit ground.
-    ground : str
-        The ground this look uses when the scene's ground is "auto".
-    auto_exposure : bool
-        Expose the frame from the lit objects' mean luminance (see
-        :func:`pointviz.images.auto_exposure`); else exposure 1.
-    """
-
-    name: str
-    ambient: float
-    occlusion: float
-    key: float
-    key_angle_deg: float
-    key_elevation: float
-    fill: float
-    sky: dict | None
-    background: tuple | None
-    backdrop: bool
-    ground: str
-    auto_exposure: bool
-
-    def lights(self, camera, up) -> list:
-        """The look's lights for a camera (directions relative to the view)."""
-        up = np.asarray(up, dtype=np.float64)
-        fwd, right = np.asarray(camera.forward), np.asarray(camera.right)
-        out = []
-        if self.key > 0:
-            direction = self.key_elevation * up - 0.4 * fwd - 0.7 * right
-            out.append(DirectionalLight(direction=tuple(direction), intensity=self.key,
-                                        angle_deg=self.key_angle_deg))
-        if self.fill > 0:
-            direction = 0.3 * up - 0.6 * fwd + 0.7 * right
-            out.append(DirectionalLight(direction=tuple(direction), intensity=self.fill,
-                                        angle_deg=0.0, shadows=False))
-        return out
-
-
-#: Named looks (the CLI's ``--look``). Objects default to "studio", terrain tiles to "outdoor".
-LOOKS = {
-    # a soft key of 12 degrees' angular size, a fill, strong sky light shaped by occlusion,
-    # on a plain backdrop
-    "studio": Look("studio", ambient=0.3, occlusion=0.2, key=1.4, key_angle_deg=6.0,
-                   key_elevation=0.9, fill=0.2, background=None,
-                   sky={"zenith": (0.95, 0.96, 1.0), "horizon": (0.9, 0.9, 0.9),
-                        "below": (0.3, 0.29, 0.28)},
-                   backdrop=True, ground="matte", auto_exposure=True),
-    # a low sun and a blue sky: relief reads from shading and cast shadows
-    "outdoor": Look("outdoor", ambient=0.8, occlusion=0.04, key=1.3, key_angle_deg=0.5,
-                    key_elevation=0.8, fill=0.0, sky=None, background=(0.8, 0.82, 0.85),
-                    backdrop=False, ground="none",
-                    auto_exposure=True),
-    # colours as scanned: even white light, no shadows
-    "flat": Look("flat", ambient=1.0, occlusion=0.0, key=0.0, key_angle_deg=0.0,
-                 key_elevation=1.0, fill=0.0, background=(0.9, 0.9, 0.9),
-                 sky={"zenith": (1.0, 1.0, 1.0), "horizon": (1.0, 1.0, 1.0),
-                      "below": (1.0, 1.0, 1.0)},
-                 backdrop=False, ground="none", auto_exposure=False),
-}
-#: Comparisons (surfels against meshes) render every backend with one fixed exposure: an
-#: exposure keyed per frame would differ between methods and enter their image errors.
-COMPARE_LOOK = replace(LOOKS["studio"], auto_exposure=False)
-#: Where a backdrop's ground starts fading into the background (bounding radii from the centre);
-#: it reaches the background at twice this.
-BACKDROP_FADE = 1.5
-
-
-def default_lights(camera, up) -> list:
-    """The studio look's lights: a soft key over the camera's left shoulder and a fill."""
-    return LOOKS["studio"].lights(camera, up)
-
-
-def resolve_look(look, geometry, up) -> Look:
-    """The :class:`Look` named by ``look``; "auto" decides from the geometry's shape."""
-    if isinstance(look, Look):
-        return look
-    if look == "auto":
-        from .camera import shape_kind
-
-        cloud = getattr(geometry, "cloud", geometry)
-        pts = getattr(cloud, "points", None)
-        if hasattr(geometry, "shape_kind") and hasattr(geometry, "tree"):  # a SurfelScene
-            kind = geometry.shape_kind(up)  # kept with the scene: every frame asks again
-        else:
-            kind = shape_kind(pts, up) if pts is not None else "object"
-        return LOOKS["outdoor" if kind == "terrain" else "studio"]
-    if look not in LOOKS:
-        raise InputError(f"look: expected one of auto, {', '.join(LOOKS)}, got {look!r}")
-    return LOOKS[look]
-
-
-@dataclass
 class SceneObject:
-    """One object of a scene: a surfel scene (or a mesh backend) and its material."""
+    """One object of a scene: a point cloud, surfel scene or mesh backend, and its material."""
 
     geometry: object
     material: Material = field(default_factory=Material)
 
 
+#: What :meth:`Scene.replace` may change: the constructor's arguments except ``up`` and the
+#: surfel options (a new up or new trees make a new scene: construct one).
+REPLACEABLE = ("clouds", "materials", "lights", "ground", "background", "ambient", "sky", "look")
+
+
+class _Built:
+    """What a scene builds on first use, in this process: the SurfelScene of each cloud object
+    and each bare cloud's extent. Shared by the copies :meth:`Scene.replace` makes with the
+    same objects (their trees are built once, whichever copy asks first); never pickled."""
+
+    def __init__(self, n: int) -> None:
+        self.lock = threading.Lock()
+        self.geometries: list = [None] * n
+        self.extents: list = [None] * n
+
+
+def _portable(options) -> dict:
+    """SurfelScene keyword arguments that rebuild the same tree in another process: the
+    origin as plain floats, and no thread count (each process uses its own cores; results
+    never depend on it)."""
+    out = dict(options)
+    out["threads"] = None
+    if out.get("origin") is not None:
+        out["origin"] = tuple(float(v) for v in np.asarray(out["origin"]).reshape(3))
+    return out
+
+
+def _hash_array(h, arr) -> None:
+    if arr is None:
+        h.update(b"none")
+        return
+    a = np.ascontiguousarray(arr)
+    h.update(f"{a.dtype.str}{a.shape}".encode())
+    h.update(a.tobytes())
+
+
+def _callback_digest(geometry) -> str:
+    """A content digest of a geometry that is not a cloud: its pickle when it has one (meshes
+    do), else its identity (then a resumed path render cannot tell it is the same geometry)."""
+    try:
+        return "callback:" + hashlib.sha256(pickle.dumps(geometry)).hexdigest()
+    except Exception:  # noqa: BLE001 - unpicklable objects fall back to identity
+        return f"callback-id:{type(geometry).__qualname__}:{id(geometry)}"
+
+
 class Scene:
-    """One or more clouds with materials, a ground plane, lights and a sky.
+    """One or more clouds with materials, a ground plane, lights and a sky: a frozen value.
+
+    Attributes cannot be set after construction; :meth:`replace` makes a validated copy that
+    shares the objects' trees. A scene pickles without its C++ trees: the clouds' arrays
+    (normals and radii estimated first) and the surfel options travel, and the trees are
+    rebuilt on first use in the receiving process, once per scene object there (an unpickled
+    scene's ``objects`` hold the clouds; :meth:`geometry` gives their rebuilt SurfelScenes).
 
     Parameters
     ----------
     clouds : PointCloud, SurfelScene or a list of them
-        What to show; a PointCloud gets a default SurfelScene.
+        What to show; a PointCloud gets a default SurfelScene (built on first use).
     lights : list of DirectionalLight/PointLight/AreaLight, optional
-        Default: a soft key light placed relative to the camera at render time.
+        Default: a soft key light placed relative to the camera at render time. Kept as a
+        tuple.
     ground : {"auto", "matte", "mirror", "glossy", "none"} or Material or None
         A plane under the clouds ("auto": the look's, matte for studio, none outdoors).
     background : "sky" or (3,) float
@@ -330,7 +127,7 @@ class Scene:
     look : {"auto", "studio", "outdoor", "flat"} or Look
         Lights, sky light and occlusion, backdrop and exposure together (see :data:`LOOKS`);
         "auto" picks "outdoor" for a terrain tile and "studio" for an object
-        (:func:`pointviz.camera.shape_kind` of the first cloud).
+        (:func:`pointviz.framing.shape_kind` of the first cloud).
     two_sided : bool
         Show surfels from both sides: the SurfelScenes built here skip the paper's normal-cone
         culling (``cull=False``), which hides open scans (terrain, one-sided scans) seen from
@@ -338,6 +135,18 @@ class Scene:
         models, or pass ``cull=`` explicitly.
     **scene_options
         Passed to the SurfelScene built for each PointCloud (e.g. ``interpolation``).
+
+    Attributes
+    ----------
+    objects : tuple of SceneObject
+    lights : tuple or None
+    ground : Material or None
+    background : (3,) float or None
+        None: the sky (or the look's background).
+    up : (3,) float64, read-only
+    ambient : float
+    sky : mapping of str to (3,) float, read-only
+    look : Look
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
@@ -358,22 +167,21 @@ class Scene:
         if up is None:
             first = clouds[0].cloud if isinstance(clouds[0], SurfelScene) else clouds[0]
             up = getattr(first, "up", None)
-        self.up = _unit(_Y_UP if up is None else up, "up")
+        up = _unit(_Y_UP if up is None else up, "up")
+        up.setflags(write=False)
         if two_sided:
             scene_options.setdefault("cull", False)
-        self._scene_options = scene_options
-        self.objects: list[SceneObject] = []
+        objects = []
         for c, m in zip(clouds, materials):
             if not isinstance(m, Material):
                 raise InputError(f"materials: expected Material, got {type(m).__name__}")
             if not (isinstance(c, Geometry) or hasattr(c, "points")):
                 raise InputError(f"clouds: cannot render a {type(c).__name__}")
-            self.objects.append(SceneObject(c, m))
-        self.lights = None if lights is None else list(lights)
-        self.look = resolve_look(look, self.objects[0].geometry, self.up)
+            objects.append(SceneObject(c, m))
+        look = resolve_look(look, objects[0].geometry, up)
         if isinstance(ground, str):
             if ground == "auto":
-                ground = self.look.ground
+                ground = look.ground
             if ground == "none":
                 ground = None
             elif ground in GROUND_MATERIALS:
@@ -383,61 +191,206 @@ class Scene:
                     f"ground: expected one of auto, none, {', '.join(GROUND_MATERIALS)}, got {ground!r}")
         if ground is not None and not isinstance(ground, Material):
             raise InputError(f"ground: expected a name or a Material, got {type(ground).__name__}")
-        self.ground = ground
         if isinstance(background, str):
             if background != "sky":
                 raise InputError(f"background: expected 'sky' or an RGB triple, got {background!r}")
-            self.background = None
+            background = None
         else:
-            self.background = _rgb(background, "background")
-        self.ambient = _in_range(self.look.ambient if ambient is None else ambient, "ambient",
-                                 0.0, 10.0)
+            background = _rgb(background, "background")
+        ambient = _in_range(look.ambient if ambient is None else ambient, "ambient", 0.0, 10.0)
         if sky is None:
-            self.sky = dict(self.look.sky or {})
-        elif isinstance(sky, dict):
+            sky = dict(look.sky or {})
+        elif isinstance(sky, Mapping):
             unknown = set(sky) - {"zenith", "horizon", "below"}
             if unknown:
                 raise InputError(f"sky: unknown keys {sorted(unknown)}")
-            self.sky = {k: _rgb(v, f"sky.{k}") for k, v in sky.items()}
+            sky = {k: _rgb(v, f"sky.{k}") for k, v in sky.items()}
         else:
             c = _rgb(sky, "sky")
-            self.sky = {"zenith": c, "horizon": c, "below": c}
+            sky = {"zenith": c, "horizon": c, "below": c}
+        options = MappingProxyType(dict(scene_options))
+        self._init(objects=tuple(objects), lights=None if lights is None else tuple(lights),
+                   look=look, ground=ground, background=background, up=up, ambient=ambient,
+                   sky=MappingProxyType(sky), _scene_options=options,
+                   _build_options=(options,) * len(objects), _built=_Built(len(objects)),
+                   _memo={})
 
-    # -- geometry -----------------------------------------------------------------------------
-    def geometry(self, i: int) -> Geometry:
-        """The :class:`~pointviz.geometry.Geometry` of object i: a cloud becomes a SurfelScene
-        on first use (its tree is built once)."""
+    def _init(self, **values) -> None:
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value) -> None:
+        hint = f"; use scene.replace({name}=...)" if name in REPLACEABLE else ""
+        raise FrozenInstanceError(f"cannot assign to field {name!r}: a Scene is frozen{hint}")
+
+    def __delattr__(self, name: str) -> None:
+        raise FrozenInstanceError(f"cannot delete field {name!r}: a Scene is frozen")
+
+    # -- copies and pickling ------------------------------------------------------------------
+    def replace(self, **changes) -> Scene:
+        """A copy with some of :data:`REPLACEABLE` changed, validated like a new scene.
+
+        Unchanged objects keep their trees: the copy shares what this scene has built, and
+        what either builds later. A new ``look`` brings its own ambient and sky unless those
+        are given too; the ground, lights and background stay the scene's unless given.
+
+        Raises
+        ------
+        TypeError
+            For a name that :meth:`replace` cannot change.
+        InputError
+            For a value the constructor refuses.
+        """
+        unknown = set(changes) - set(REPLACEABLE)
+        if unknown:
+            raise TypeError(f"Scene.replace() got unexpected field(s) {sorted(unknown)} "
+                            f"(it changes {', '.join(REPLACEABLE)})")
+        new_look = "look" in changes
+        same_objects = "clouds" not in changes
+        kw = {"clouds": [o.geometry for o in self.objects],
+              "materials": [o.material for o in self.objects],
+              "lights": self.lights, "ground": "none" if self.ground is None else self.ground,
+              "background": "sky" if self.background is None else self.background,
+              "ambient": None if new_look else self.ambient,
+              "sky": None if new_look else (dict(self.sky) or None), "look": self.look,
+              **changes}
+        # two_sided=False: the options already hold the resolved ``cull``
+        s = Scene(up=self.up, two_sided=False, **kw, **self._scene_options)
+        if same_objects:
+            s._init(_build_options=self._build_options, _built=self._built)
+        else:  # a cloud kept from this scene keeps its surfel options (an unpickled one's too)
+            mine = {id(o.geometry): opts for o, opts in zip(self.objects, self._build_options)}
+            s._init(_build_options=tuple(mine.get(id(o.geometry), opts)
+                                         for o, opts in zip(s.objects, s._build_options)))
+        return s
+
+    def with_look(self, look) -> Scene:
+        """A copy with another look (objects and their trees are shared): its lights (unless
+        the scene has its own), sky light, occlusion, backdrop and exposure. The ground stays
+        the scene's."""
+        return self.replace(look=look)
+
+    def with_ground(self, ground) -> Scene:
+        """A copy with another ground (objects and their trees are shared)."""
+        return self.replace(ground=ground)
+
+    def _sources(self) -> list[tuple[object, dict | None]]:
+        """Per object, what rebuilds it in another process: (cloud, SurfelScene options) for
+        surfels, (geometry, None) for any other geometry. Normals and radii are estimated
+        here, once, so that every process renders the same surfels."""
         from .surfels import SurfelScene
 
-        obj = self.objects[i]
-        if not isinstance(obj.geometry, Geometry):
-            obj.geometry = SurfelScene(obj.geometry, **self._scene_options)
-        return obj.geometry
+        out = []
+        for obj, options in zip(self.objects, self._build_options):
+            g = obj.geometry
+            if isinstance(g, SurfelScene):
+                if g.cloud is None:
+                    raise InputError("scene: a SurfelScene(keep_cloud=False) cannot be pickled "
+                                     "or hashed: its cloud is gone")
+                out.append((g.cloud, _portable(g.settings)))
+            elif isinstance(g, Geometry):
+                out.append((g, None))
+            else:
+                _ = g.normals, g.radii
+                out.append((g, _portable(options)))
+        return out
+
+    def __getstate__(self) -> dict:
+        """The scene without its trees: clouds (normals and radii estimated), the options that
+        rebuild their trees, materials, lights, ground, sky and look."""
+        return {"objects": tuple((src, obj.material, options)
+                                 for obj, (src, options) in zip(self.objects, self._sources())),
+                "lights": self.lights, "look": self.look, "ground": self.ground,
+                "background": self.background, "up": tuple(float(v) for v in self.up),
+                "ambient": self.ambient, "sky": dict(self.sky),
+                "scene_options": dict(self._scene_options), "key": self._memo.get("key")}
+
+    def __setstate__(self, state: dict) -> None:
+        up = np.array(state["up"], dtype=np.float64)
+        up.setflags(write=False)
+        objects = state["objects"]
+        self._init(objects=tuple(SceneObject(src, m) for src, m, _ in objects),
+                   lights=state["lights"], look=state["look"], ground=state["ground"],
+                   background=state["background"], up=up, ambient=state["ambient"],
+                   sky=MappingProxyType(dict(state["sky"])),
+                   _scene_options=MappingProxyType(dict(state["scene_options"])),
+                   _build_options=tuple(MappingProxyType({} if o is None else o)
+                                        for _, _, o in objects),
+                   _built=_Built(len(objects)),
+                   _memo={} if state.get("key") is None else {"key": state["key"]})
+
+    @property
+    def key(self) -> str:
+        """SHA-256 (hex) of everything that affects the image: the clouds' arrays and surfel
+        options, other geometries' pickles, materials, lights, ground, background, up, sky and
+        look. Equal scenes (in any process, e.g. a pickled copy) have equal keys; computed
+        once per scene (estimating missing normals and radii)."""
+        key = self._memo.get("key")
+        if key is None:
+            h = hashlib.sha256()
+            for obj, (src, options) in zip(self.objects, self._sources()):
+                if options is None:
+                    h.update(_callback_digest(src).encode())
+                else:
+                    for name in ("points", "normals", "radii", "colors"):
+                        _hash_array(h, getattr(src, name, None))
+                    h.update(repr(sorted(options.items())).encode())
+                h.update(repr(obj.material).encode())
+            rest = (None if self.lights is None else list(self.lights), self.ground,
+                    self.background, tuple(float(v) for v in self.up), self.ambient,
+                    sorted(self.sky.items()), self.look)
+            h.update(repr(rest).encode())
+            key = self._memo.setdefault("key", h.hexdigest())
+        return key
+
+    # -- geometry -----------------------------------------------------------------------------
+    def _geometry(self, i: int) -> tuple[Geometry, bool]:
+        """Object i's geometry and whether this call built it."""
+        g = self.objects[i].geometry
+        if isinstance(g, Geometry):
+            return g, False
+        built = self._built
+        if built.geometries[i] is not None:
+            return built.geometries[i], False
+        with built.lock:  # one build per object, whichever thread asks first
+            if built.geometries[i] is not None:
+                return built.geometries[i], False
+            from .surfels import SurfelScene
+
+            built.geometries[i] = SurfelScene(g, **self._build_options[i])
+            return built.geometries[i], True
+
+    def geometry(self, i: int) -> Geometry:
+        """The :class:`~pointviz.geometry.Geometry` of object i: a cloud becomes a SurfelScene
+        on first use (its tree is built once per process, and shared with this scene's
+        :meth:`replace` copies)."""
+        return self._geometry(i)[0]
 
     def surfel_scene(self, i: int):
         """The SurfelScene of object i, built on first use (a mesh object is returned as is)."""
         return self.geometry(i)
 
-    def _extent(self, obj) -> tuple[np.ndarray, np.ndarray, float]:
-        """Bounds (with disk radii) and ground level of one object, computed once per geometry:
-        every frame of a path or viewer session would otherwise scan all points again. A
-        SurfelScene keeps its own (so a new Scene around it, as ``render(surfel_scene)`` makes
-        for every frame, costs nothing that grows with the cloud); a bare cloud's is kept here."""
-        g = obj.geometry
-        cloud = getattr(g, "cloud", g)
-        cache = self.__dict__.setdefault("_extents", {})
-        hit = cache.get(id(cloud))
-        if hit is not None and hit[0] is cloud:  # also when the cloud has become a SurfelScene
-            return hit[1]
-        if isinstance(g, Geometry):  # a SurfelScene keeps its own, a mesh's is cheap
+    def build(self) -> int:
+        """Build every object's tree now (thread-safe); the number this call built."""
+        return sum(self._geometry(i)[1] for i in range(len(self.objects)))
+
+    def _extent(self, i: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """Bounds (with disk radii) and ground level of object i, computed once: every frame of
+        a path or viewer session would otherwise scan all points again. A geometry keeps its
+        own (so a new Scene around a SurfelScene, as ``render(surfel_scene)`` makes for every
+        frame, costs nothing that grows with the cloud); a bare cloud's is kept with the
+        scene's built trees."""
+        g = self.objects[i].geometry
+        if isinstance(g, Geometry):
             return g.extent(self.up)
-        ext = _extent_mod.cloud_extent(cloud.points, getattr(cloud, "radii", None), self.up)
-        cache[id(cloud)] = (cloud, ext)
-        return ext
+        built = self._built
+        if built.extents[i] is None:  # also once the cloud's SurfelScene exists
+            built.extents[i] = _extent_mod.cloud_extent(g.points, getattr(g, "radii", None), self.up)
+        return built.extents[i]
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of every object (including disk radii)."""
-        ext = [self._extent(obj) for obj in self.objects]
+        ext = [self._extent(i) for i in range(len(self.objects))]
         return np.min([e[0] for e in ext], axis=0), np.max([e[1] for e in ext], axis=0)
 
     @property
@@ -455,7 +408,7 @@ class Scene:
         """
         lo, hi = self.bounds()
         center = 0.5 * (lo + hi)
-        level = min(self._extent(obj)[2] for obj in self.objects)
+        level = min(self._extent(i)[2] for i in range(len(self.objects)))
         return center + (level - center @ self.up) * self.up
 
     def to_core(self, camera, lod_pixels: float | str, max_error: float | None = None):
@@ -505,26 +458,6 @@ class Scene:
                 cos = float(_unit(light.direction, "light.direction") @ self.up)
                 e += np.asarray(light.color) * light.intensity * max(cos, 0.0)
         return tuple(float(v) for v in np.asarray(self.ground.color) * e * self.ground.diffuse)
-
-    def with_look(self, look) -> Scene:
-        """A shallow copy with another look (objects and their trees are shared): its lights
-        (unless the scene has its own), sky light, occlusion, backdrop and exposure. The ground
-        stays the scene's."""
-        s = Scene.__new__(Scene)
-        s.__dict__.update(self.__dict__)
-        s.look = resolve_look(look, self.objects[0].geometry, self.up)
-        s.ambient = s.look.ambient
-        s.sky = dict(s.look.sky or {})
-        return s
-
-    def with_ground(self, ground) -> Scene:
-        """A shallow copy with another ground (objects and their trees are shared)."""
-        s = Scene.__new__(Scene)
-        s.__dict__.update(self.__dict__)
-        s.objects = [replace(o) for o in self.objects]
-        tmp = Scene([o.geometry for o in self.objects[:1]], ground=ground, up=self.up, look=self.look)
-        s.ground = tmp.ground
-        return s
 
     def __repr__(self) -> str:
         return (f"Scene({len(self.objects)} objects, ground={'none' if self.ground is None else 'yes'}, "

@@ -184,13 +184,51 @@ class RenderSettings:
         """Keyword arguments of :func:`pointviz.render`."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
+    def to_json(self) -> dict:
+        """Every setting, JSON-safe: objects (a Material ground, a Look) by ``repr``."""
+        return {k: _json_value(v) for k, v in asdict(self).items()}
+
     def manifest(self) -> dict:
         """Every setting that affects the image, JSON-safe (``threads`` is left out: results
-        never depend on it). Objects (a Material ground, a Look) are recorded by ``repr``."""
-        out = asdict(self)
+        never depend on it)."""
+        out = self.to_json()
         out.pop("threads")
-        return {k: (v if isinstance(v, (bool, int, float, str, type(None))) else repr(v))
-                for k, v in out.items()}
+        return out
+
+    @classmethod
+    def describe(cls, used: dict | None = None) -> list[dict]:
+        """One row per setting, for reports: ``name``, ``value`` (from ``used``, a
+        :meth:`to_json` dict, when given; else the default), ``default``, ``accepted`` (its
+        range or choices, in words) and ``help``."""
+        rows = []
+        for f in fields(cls):
+            default = _json_value(f.default)
+            rows.append({"name": f.name, "value": default if used is None else used.get(f.name),
+                         "default": default, "accepted": _accepted(f), "help": f.metadata["help"]})
+        return rows
+
+
+def _json_value(value: Any) -> Any:
+    return value if isinstance(value, (bool, int, float, str, type(None))) else repr(value)
+
+
+def _accepted(f) -> str:
+    """What setting ``f`` accepts, in words (from its metadata, like :func:`_check`)."""
+    m = f.metadata
+    parts = []
+    if m["kind"] is bool and m["choices"] is None:
+        parts.append("True or False")
+    elif m["kind"] in (int, float) and m["lo"] is not None:
+        what, num = ("an integer", int) if m["kind"] is int else ("a number", float)
+        lo, hi = f"{num(m['lo'])}", None if m["hi"] is None else f"{num(m['hi'])}"
+        parts.append(f"{what} >= {lo}" if hi is None else f"{what} in [{lo}, {hi}]")
+    if m["choices"] is not None:
+        parts.append(", ".join(map(str, m["choices"])))
+    if m["objects"]:
+        parts.append(f"a {m['objects']}")
+    if m["optional"]:
+        parts.append("None")
+    return " or ".join(parts)
 
 
 def _check(f, value: Any) -> Any:

@@ -164,6 +164,48 @@ def test_unknown_method_is_an_input_error(tmp_path):
         compare("sphere", out_dir=tmp_path, methods=["nerf"], quick=True)
 
 
+@needs_embreex
+@needs_flip
+def test_report_states_exactly_the_render_settings_used(tmp_path, monkeypatch):
+    import html
+    import re
+
+    import pointviz.rendering
+    from pointviz.comparison import compare
+    from pointviz.settings import RenderSettings
+
+    used = []
+    real = pointviz.rendering.render
+
+    def spy(scene, camera, **kw):  # what the comparison really passes to render()
+        used.append(RenderSettings(**kw).to_json())
+        return real(scene, camera, **kw)
+
+    monkeypatch.setattr(pointviz.rendering, "render", spy)
+    doc = compare("sphere", out_dir=tmp_path, methods=["surfels-smooth"], quick=True,
+                  log=lambda *_: None)
+    data = json.loads((tmp_path / "metrics.json").read_text())
+    validate(data)
+    assert used and list(data["render"]) == list(RenderSettings.names())
+    # every frame used the stated settings, but for its level of detail and (the surfel
+    # reference) its samples
+    for u in used:
+        assert {k: v for k, v in u.items() if k not in ("lod_pixels", "spp")} == \
+            {k: v for k, v in data["render"].items() if k not in ("lod_pixels", "spp")}
+    assert {u["lod_pixels"] for u in used} == {0.0} | {e["settings"]["lod_pixels"]
+                                                       for e in doc["entries"]}
+    page = (tmp_path / "index.html").read_text()
+    table = re.search(r'<table id="render-settings">(.*?)</table>', page, re.S).group(1)
+    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td><td>(.*?)</td><td>(.*?)</td>"
+                      r"<td>(.*?)</td></tr>", table)
+    assert [r[0] for r in rows] == list(RenderSettings.names())
+    defaults, meta = RenderSettings(), RenderSettings.__dataclass_fields__
+    for name, value, default, _accepts, meaning in rows:
+        assert value == html.escape(str(data["render"][name]))
+        assert default == html.escape(str(getattr(defaults, name)))
+        assert meaning == html.escape(meta[name].metadata["help"])
+
+
 @pytest.fixture(scope="module")
 def quick_report(tmp_path_factory):
     """One quick report with every method and the stability sweeps (shared by the tests)."""

@@ -15,7 +15,7 @@ import signal
 
 import pytest
 
-from pointviz.distributed import render_frame_task, scene_spec
+from pointviz.distributed import core_identity, render_frame_task
 from pointviz.path import CameraPath, render_path
 
 distributed = pytest.importorskip("distributed")
@@ -58,17 +58,30 @@ def frames_of(folder):
     return {p.name: p.read_bytes() for p in folder.glob("frame_*.png")}
 
 
-def test_spec_pickles_without_trees_and_rebuilds_the_same_frame(scene, path):
-    spec = scene_spec(scene)
-    assert scene_spec(scene).key == spec.key  # stable content hash
-    copy = pickle.loads(pickle.dumps(spec))
-    assert copy._built is None and copy.key == spec.key
+def test_scene_pickles_without_trees_and_rebuilds_the_same_frame(scene, path):
+    from pointviz import Scene
+
+    fresh = Scene([o.geometry for o in scene.objects], up=scene.up)
+    assert fresh.key == scene.key  # stable content hash
+    copy = pickle.loads(pickle.dumps(scene))
+    assert copy.key == scene.key
+    assert all(g is None for g in copy._built.geometries)  # no trees travel
     cam = path.cameras()[3].to_dict()
-    local, _ = render_frame_task(spec, cam, SETTINGS)
-    remote, info = render_frame_task(copy, cam, SETTINGS)
+    local, _ = render_frame_task(scene, cam, SETTINGS)
+    remote, info = render_frame_task(copy, cam, SETTINGS, core_identity())
     assert info["built"] and remote == local
     _, again = render_frame_task(copy, cam, SETTINGS)
     assert not again["built"]  # built once per process, then reused
+
+
+def test_scene_spec_is_a_deprecated_alias(scene):
+    import pointviz.distributed as dist
+    from pointviz import Scene
+
+    with pytest.warns(DeprecationWarning, match="scene_spec"):
+        assert dist.scene_spec(scene) is scene
+    with pytest.warns(DeprecationWarning, match="SceneSpec"):
+        assert dist.SceneSpec is Scene
 
 
 def test_cluster_frames_identical_to_serial(scene, path, serial_frames, cluster, tmp_path):
@@ -128,7 +141,6 @@ def test_killed_worker_still_finishes(scene, serial_frames, tmp_path):
 def test_worker_with_another_core_build_refuses(scene, path):
     from pointviz.errors import PointvizError
 
-    spec = pickle.loads(pickle.dumps(scene_spec(scene)))
-    spec.core = "0.0.0+another-build"
+    copy = pickle.loads(pickle.dumps(scene))
     with pytest.raises(PointvizError, match="differs from the client's"):
-        render_frame_task(spec, path.cameras()[0].to_dict(), SETTINGS)
+        render_frame_task(copy, path.cameras()[0].to_dict(), SETTINGS, "0.0.0+another-build")

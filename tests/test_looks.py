@@ -161,9 +161,6 @@ def test_look_from_the_data_and_bad_names(rng):
 def test_a_scene_sent_to_workers_keeps_its_look():
     import pickle
 
-    from pointviz.distributed import scene_spec
-
-    spec = pickle.loads(pickle.dumps(scene_spec(Scene([sphere(2000)], look="flat"))))
-    rebuilt, built = spec.scene()
-    assert built and rebuilt.look == LOOKS["flat"]
-    assert scene_spec(Scene([sphere(2000)], look="studio")).key != spec.key
+    rebuilt = pickle.loads(pickle.dumps(Scene([sphere(2000)], look="flat")))
+    assert rebuilt.build() == 1 and rebuilt.look == LOOKS["flat"]
+    assert Scene([sphere(2000)], look="studio").key != rebuilt.key

@@ -119,3 +119,171 @@ def test_a_flat_surfel_scene_gets_the_outdoor_look_from_the_cache(rng):
     assert tile.shape_kind((0.0, 1.0, 0.0)) == "terrain"
     assert Scene(tile).look is scene_mod.LOOKS["outdoor"]
     assert Scene(tile).look is scene_mod.LOOKS["outdoor"]  # second time from the cache
+
+
+# -- the frozen value: replace(), pickling without trees --------------------------------------
+
+def value_scene(rng, two_sided=True):
+    """Three kinds of object: a bare cloud without normals or radii (estimated on first use),
+    a SurfelScene with non-default options, and (when embreex is there) a mesh."""
+    from pointviz.scene import DirectionalLight, Material, PointLight
+    from pointviz.shapes import sphere
+    from pointviz.surfels import SurfelScene
+
+    raw = PointCloud(rng.normal(size=(3000, 3)) * [0.6, 0.3, 0.6] + [0.0, 0.3, 0.0])
+    objs = [raw, SurfelScene(sphere(4000, 0.4, (1.0, 0.5, 0.0)), interpolation="paper",
+                             leaf_size=6)]
+    mats = [Material.matte((0.8, 0.3, 0.2)), Material.glossy()]
+    try:
+        import embreex  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        from pointviz.meshes import MeshGeometry
+
+        v = np.array([[-1.0, 0.0, -1.0], [-0.2, 0.0, -1.0], [-0.6, 0.8, -0.6], [-0.6, 0.0, -0.2]])
+        objs.append(MeshGeometry(v, [[0, 1, 2], [0, 2, 3], [1, 3, 2], [0, 3, 1]]))
+        mats.append(Material.reflective())
+    lights = [DirectionalLight(direction=(0.3, 1.0, 0.2), angle_deg=3.0),
+              PointLight(position=(0.0, 2.0, 1.0), intensity=2.0, radius=0.1)]
+    return Scene(objs, materials=mats, lights=lights, ground="mirror", look="studio",
+                 sky=(0.5, 0.6, 0.7), two_sided=two_sided)
+
+
+def test_pickled_scene_renders_identically_and_builds_once(rng):
+    import pickle
+
+    scene = value_scene(rng)
+    cam = pointviz.Camera.fit(scene, width=48, height=36)
+    before = pointviz.render(scene, cam, spp=2, seed=7)
+    copy = pickle.loads(pickle.dumps(scene))
+    assert type(copy) is Scene and copy.key == scene.key
+    assert [o.material for o in copy.objects] == [o.material for o in scene.objects]
+    assert (copy.lights, copy.ground, copy.look, dict(copy.sky), copy.ambient) == \
+        (scene.lights, scene.ground, scene.look, dict(scene.sky), scene.ambient)
+    assert copy.build() == 2  # both surfel objects, lazily, on first use
+    assert copy.build() == 0  # then never again in this process
+    after = pointviz.render(copy, cam, spp=2, seed=7)
+    np.testing.assert_array_equal(after.color, before.color)
+    np.testing.assert_array_equal(after.depth, before.depth)
+
+
+def test_pickle_carries_the_arrays_not_the_trees(rng):
+    import pickle
+
+    from pointviz.shapes import sphere
+
+    cloud = sphere(20000)
+    scene = Scene(cloud)
+    tree_bytes = scene.surfel_scene(0).memory_bytes  # built before pickling
+    arrays = sum(a.nbytes for a in (cloud.points, cloud.normals, cloud.radii))
+    size = len(pickle.dumps(scene))
+    assert arrays <= size < arrays + 0.25 * tree_bytes
+    # a pickled SurfelScene alone carries no tree either (it is rebuilt on load), and the
+    # scene's pickle is no larger than it
+    assert size <= len(pickle.dumps(scene.surfel_scene(0))) + 4096
+
+
+def test_a_scene_cannot_be_changed_after_construction(rng):
+    from dataclasses import FrozenInstanceError
+
+    from pointviz.scene import DirectionalLight
+
+    scene = value_scene(rng)
+    for name, value in (("lights", []), ("ground", None), ("objects", ()), ("up", (0, 0, 1)),
+                        ("look", "flat"), ("new_attribute", 1)):
+        with pytest.raises(FrozenInstanceError, match=name):
+            setattr(scene, name, value)
+    with pytest.raises(FrozenInstanceError):
+        del scene.sky
+    assert isinstance(scene.objects, tuple) and isinstance(scene.lights, tuple)
+    with pytest.raises(AttributeError):  # a tuple
+        scene.lights.append(DirectionalLight())
+    with pytest.raises(TypeError):
+        scene.sky["zenith"] = (1.0, 1.0, 1.0)
+    with pytest.raises(ValueError):
+        scene.up[0] = 1.0
+    with pytest.raises(FrozenInstanceError):
+        scene.objects[0].geometry = None
+
+
+def test_replace_validates_like_the_constructor(blob):
+    from pointviz.errors import InputError
+    from pointviz.scene import Material
+
+    scene = Scene(blob)
+    for field_, value in (("ground", "lava"), ("look", "noir"), ("ambient", -1.0),
+                          ("background", "black"), ("sky", {"zenith": (1, 1, 1), "top": (0, 0, 0)}),
+                          ("materials", [Material(), Material()]), ("clouds", [])):
+        with pytest.raises(InputError) as fresh:
+            Scene(**{"clouds": blob, field_: value})
+        with pytest.raises(InputError) as copied:
+            scene.replace(**{field_: value})
+        assert str(copied.value) == str(fresh.value)
+    with pytest.raises(TypeError, match="up"):
+        scene.replace(up=(0, 0, 1))
+    with pytest.raises(TypeError, match="interpolation"):
+        scene.replace(interpolation="none")
+
+
+def test_replace_changes_only_what_it_is_given(rng):
+    from pointviz.scene import GROUND_MATERIALS, LOOKS
+
+    scene = value_scene(rng, two_sided=False)
+    mirror = scene.replace(ground="glossy")
+    assert mirror.ground == GROUND_MATERIALS["glossy"] and scene.ground == GROUND_MATERIALS["mirror"]
+    assert (mirror.lights, mirror.look, dict(mirror.sky), mirror.ambient) == \
+        (scene.lights, scene.look, dict(scene.sky), scene.ambient)
+    flat = scene.replace(look="flat")  # a new look brings its sky light; the ground stays
+    assert flat.look == LOOKS["flat"] and flat.ambient == LOOKS["flat"].ambient
+    assert dict(flat.sky) == LOOKS["flat"].sky and flat.ground == scene.ground
+    # the surfel options stay the scene's (two_sided=False: the normal cones cull)
+    assert mirror.geometry(0).cull == scene.geometry(0).cull
+    assert mirror.key != scene.key and scene.replace().key == scene.key
+
+
+def test_copies_share_the_trees_whichever_builds_first(blob):
+    scene = Scene(blob)
+    copy = scene.replace(ground="mirror").with_look("outdoor")
+    assert copy.build() == 1 and scene.build() == 0
+    assert copy.geometry(0) is scene.geometry(0)
+    other = scene.replace(clouds=[blob])  # new objects: their own trees
+    assert other.build() == 1
+
+
+def test_concurrent_first_use_builds_each_tree_once(rng):
+    import threading
+
+    from pointviz.shapes import sphere, torus
+
+    scene = Scene([sphere(3000), torus(3000)])
+    copies = [scene, scene.with_ground("mirror"), scene.replace(lights=[]), scene]
+    start = threading.Barrier(len(copies))
+    built = []
+
+    def first_use(s):
+        start.wait()
+        built.append(s.build())
+
+    threads = [threading.Thread(target=first_use, args=(s,)) for s in copies]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(built) in ([0, 0, 0, 2], [0, 0, 1, 1])
+    assert sum(built) == 2
+    assert len({id(c.geometry(0)) for c in copies}) == 1
+
+
+def test_an_unpickled_surfel_object_keeps_its_options_through_replace(rng):
+    import pickle
+
+    from pointviz.shapes import sphere
+    from pointviz.surfels import SurfelScene
+
+    ss = SurfelScene(sphere(2000), interpolation="paper", leaf_size=5)
+    copy = pickle.loads(pickle.dumps(Scene([ss, sphere(1000)])))
+    again = copy.replace(clouds=[o.geometry for o in copy.objects][::-1])
+    assert again.geometry(1).interpolation == "paper"
+    assert again.geometry(1).settings["leaf_size"] == 5
+    assert again.geometry(0).interpolation != "paper"

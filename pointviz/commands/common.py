@@ -126,7 +126,7 @@ def make_scene_and_camera(args, prepare: bool = True):
     if isinstance(loaded, Scene):
         scene = loaded
         if lights is not None:
-            scene.lights = lights
+            scene = scene.replace(lights=lights)
         if args.ground not in (None, "auto"):  # a scene keeps its own unless told
             scene = scene.with_ground(args.ground)
         if args.look not in (None, "auto"):
@@ -161,8 +161,7 @@ def prepare_scene(scene) -> None:
         if hasattr(cloud, "points"):
             _ = cloud.normals, cloud.radii
     stage("normals")
-    for i in range(len(scene.objects)):
-        scene.surfel_scene(i)
+    scene.build()
     stage("built")
 
 

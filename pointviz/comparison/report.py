@@ -14,6 +14,7 @@ import numpy as np
 from ..files import atomic_write_bytes, atomic_write_text
 from ..images import encode_png
 from .schema import SCHEMA, json_safe, validate
+from .settings import REFERENCE_SPP_FACTOR
 from .style import STYLE
 
 
@@ -239,6 +240,23 @@ def entries_table(entries) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
+def render_settings_table(used: dict) -> str:
+    """The render settings of the run, one row per :class:`~pointviz.settings.RenderSettings`
+    field: the value used, the default, what it accepts and what it does (all read from
+    RenderSettings)."""
+    from ..settings import RenderSettings
+
+    def cell(v):
+        return f"<td>{html.escape(str(v))}</td>"
+
+    head = ("<tr><th>setting</th><th>used</th><th>default</th><th>accepts</th>"
+            "<th>meaning</th></tr>")
+    rows = "".join(f"<tr>{cell(r['name'])}{cell(r['value'])}{cell(r['default'])}"
+                   f"{cell(r['accepted'])}{cell(r['help'])}</tr>"
+                   for r in RenderSettings.describe(used))
+    return f'<table id="render-settings">{head}{rows}</table>'
+
+
 def write_report(out: Path, doc: dict, writer: ImageWriter, overwrite: bool = True) -> Path:
     """Write ``metrics.json``, the figures and ``index.html``; returns the index path."""
     out = Path(out)
@@ -266,11 +284,18 @@ def write_report(out: Path, doc: dict, writer: ImageWriter, overwrite: bool = Tr
               if ref.get("note") else "")
     load = (f" Reading the input took {doc['load_seconds']:.2f} s, shared by every method and "
             "not counted in their times." if "load_seconds" in doc else "")
+    settings_section = ""
+    if "render" in doc:
+        settings_section = (
+            f"<h2>Render settings</h2><p>Every frame is rendered with these settings; the level "
+            "of detail (<code>lod_pixels</code>) is each entry's (above), and a reference made "
+            f"of surfels (no mesh given) takes {REFERENCE_SPP_FACTOR}× the samples.</p>"
+            + render_settings_table(doc["render"]))
     page = f"""<!doctype html><html lang="en"><head><meta charset="utf-8">
 <title>pointviz compare: {html.escape(doc['input'])}</title>
 <style>body{{font-family:sans-serif;margin:1.5em;max-width:1300px}} img{{max-width:100%}}
 table{{border-collapse:collapse;font-size:13px}} td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}
-td:first-child,td:nth-child(2){{text-align:left}} figure{{display:inline-block;margin:4px;width:330px;font-size:12px}}
+td:first-child,td:nth-child(2),#render-settings td{{text-align:left}} figure{{display:inline-block;margin:4px;width:330px;font-size:12px}}
 figure img{{width:160px}} .note{{background:#f4f4f4;padding:.5em 1em}}</style></head><body>
 <h1>Surfels vs meshes: {html.escape(doc['input'])}</h1>
 <p class="verdict"><b>{html.escape(verdict(doc))}</b></p>
@@ -284,6 +309,7 @@ backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BV
 {caveat}
 <h2>Speed against accuracy</h2><img src="{chart}" alt="speed-accuracy chart">
 <h2>All methods and settings</h2>{entries_table(entries)}
+{settings_section}
 <h2>Frames and FLIP error maps</h2><p><img src="{writer.reference_png}" alt="reference" style="width:320px"><br>reference</p>{gallery}
 {stab}
 </body></html>"""

@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import FileFormatError, InputError
 from ..meshes import MeshGeometry
 from . import analytic, metrics
-from .settings import Settings, render_geometry
+from .settings import REFERENCE_SPP_FACTOR, Settings, render_geometry
 
 #: Method names, in report order.
 METHODS = ("discs", "surfels-paper", "surfels-smooth", "poisson", "ball-pivoting", "alpha-shape")
@@ -57,7 +57,8 @@ def load_input(source, settings: Settings, reference=None):
             mesh = (np.asarray(m.vertices), np.asarray(m.triangles), True)
     cloud, seconds = _timed(lambda: io.load(path, estimate=False))
     cloud._compare_load_seconds = seconds
-    kind, desc = "surfels-full-detail", "surfels (smooth, no LoD, 4x spp): no mesh was given"
+    kind = "surfels-full-detail"
+    desc = f"surfels (smooth, no LoD, {REFERENCE_SPP_FACTOR}x spp): no mesh was given"
     if mesh is not None:
         kind, desc = "mesh", f"the input mesh {path.name}"
     if reference is not None:
@@ -242,7 +243,8 @@ def compare(input, reference=None, camera=None, out_dir="compare_out", methods=N
         from ..surfels import SurfelScene
 
         reference_frame = render_geometry(SurfelScene(cloud, interpolation="smooth"), camera,
-                                          settings, lod=0.0, spp=4 * settings.spp)
+                                          settings, lod=0.0,
+                                          spp=REFERENCE_SPP_FACTOR * settings.spp)
     log(f"  reference ({desc}): {time.perf_counter() - t0:.2f} s")
     writer = report.ImageWriter(out, reference_frame, overwrite)
     entries = run_methods(cloud, camera, settings, methods, reference_frame, diagonal,
@@ -256,6 +258,7 @@ def compare(input, reference=None, camera=None, out_dir="compare_out", methods=N
     doc = {"schema": "pointviz.compare/1", "input": name, "points": int(len(cloud)),
            "reference": reference_doc,
            "image": {"width": camera.width, "height": camera.height, "spp": settings.spp},
+           "render": settings.render_settings().to_json(),
            "camera": camera.to_dict(), "entries": entries}
     if load_seconds is not None:
         doc["load_seconds"] = float(load_seconds)

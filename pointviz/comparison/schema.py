@@ -39,6 +39,10 @@ SCHEMA = {
                   "properties": {"width": {"type": "integer", "minimum": 1},
                                  "height": {"type": "integer", "minimum": 1},
                                  "spp": {"type": "integer", "minimum": 1}}},
+        "render": {"type": "object",
+                   "description": "the render settings of every frame (pointviz.RenderSettings, "
+                                  "one key per field); lod_pixels varies per entry (its "
+                                  "settings), the reference without a mesh has 4x the spp"},
         "camera": {"type": "object"},
         "entries": {
             "type": "array", "minItems": 1,

@@ -9,12 +9,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..camera import Camera, _json_dumps, _size, atomic_write_text, read_json_file
+from ..camera import Camera
 from ..errors import CancelledError, FileFormatError, InputError
+from ..files import atomic_write_text, json_text, read_json_file
 from ..frames import frame_png, is_complete_png
 from ..interrupt import stage
 from ..progress import ProgressBar
 from ..settings import RenderSettings
+from ..values import check_image_size as _size
 from .camera_path import CameraPath
 from .keyframes import check_fps
 
@@ -55,7 +57,7 @@ def _path_cameras(path: Any, width: int | None, height: int | None) -> tuple[lis
 
 
 def _digest(obj: Any) -> str:
-    return hashlib.sha256(_json_dumps(obj).encode()).hexdigest()
+    return hashlib.sha256(json_text(obj).encode()).hexdigest()
 
 
 def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
@@ -97,7 +99,7 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
             f.unlink()
     for stale in out.glob(".frame_*.part"):  # left by a process killed mid-write
         stale.unlink()
-    atomic_write_text(mpath, _json_dumps(manifest), overwrite=True)
+    atomic_write_text(mpath, json_text(manifest), overwrite=True)
 
 
 def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
@@ -161,9 +163,9 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
         (scene builds per worker pid) and ``startup_seconds`` (cluster start or connection and
         scene scatter, included in ``seconds``).
     """
-    from ..distributed import render_frames, scene_spec
+    from ..distributed import render_frames
     from ..images import atomic_write_bytes
-    from ..rendering import _cancel_check
+    from ..rendering import _cancel_check, as_scene
 
     cameras, path_fps = _path_cameras(path, width, height)
     fps = path_fps if fps is None else check_fps(fps)
@@ -182,9 +184,9 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     else:
         raise InputError("progress: expected True, False or a callable(done, total)")
 
-    spec = scene_spec(scene_or_cloud)
+    scene = as_scene(scene_or_cloud)
     w, h = cameras[0]["width"], cameras[0]["height"]
-    manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "scene": spec.key,
+    manifest = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "scene": scene.key,
                 "cameras": _digest(cameras), "settings": settings, "n_frames": len(cameras),
                 "width": w, "height": h}
     out = Path(out_dir)
@@ -206,7 +208,6 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     if scheduler == SERIAL:
         scheduler = None
     if todo and scheduler is None:
-        scene, _ = spec.scene()
         for i in todo:
             if is_cancelled():
                 raise CancelledError("path render cancelled")
@@ -220,7 +221,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
             atomic_write_bytes(files[i], png, overwrite=True)
             return advance()
 
-        res = render_frames(spec, [(i, cameras[i]) for i in todo], render_kwargs, on_frame,
+        res = render_frames(scene, [(i, cameras[i]) for i in todo], render_kwargs, on_frame,
                             scheduler=scheduler, workers=workers, retries=retries,
                             cancel=is_cancelled)
         info = {"scheduler": res["address"], "workers": res["workers"],

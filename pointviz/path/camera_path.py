@@ -10,19 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import (
-    DEFAULT_FOV_DEG,
-    DEFAULT_HEIGHT,
-    DEFAULT_MARGIN,
-    DEFAULT_UP,
-    DEFAULT_WIDTH,
-    Camera,
-    _json_dumps,
-    _real,
-    _size,
-    atomic_write_text,
-    read_json_file,
-)
+from ..camera import DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, Camera
+from ..files import atomic_write_text, json_text, read_json_file
+from ..framing import DEFAULT_MARGIN, DEFAULT_UP
+from ..values import check_image_size as _size
+from ..values import check_real as _real
 from ..errors import FileFormatError, InputError, require
 from .keyframes import (
     DEFAULT_EASING,
@@ -302,7 +294,7 @@ class CameraPath:
         FileExistsError
             If ``path`` exists and ``overwrite`` is False (the file is left untouched).
         """
-        return atomic_write_text(path, _json_dumps(self.to_dict()), overwrite=overwrite)
+        return atomic_write_text(path, json_text(self.to_dict()), overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CameraPath:

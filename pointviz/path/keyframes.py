@@ -9,19 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import (
-    DEFAULT_FOV_DEG,
-    DEFAULT_HEIGHT,
-    DEFAULT_UP,
-    DEFAULT_WIDTH,
-    Camera,
-    _fov,
-    _real,
-    _vec3,
-    view_basis,
-)
+from ..camera import DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, Camera, view_basis
 from ..errors import InputError
+from ..framing import DEFAULT_UP
 from ..frozen import ArrayValue, set_fields
+from ..values import check_fov as _fov
+from ..values import check_real as _real
+from ..values import check_vec3 as _vec3
 from .curves import (
     CatmullRom,
     TimeMap,

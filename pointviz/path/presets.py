@@ -9,20 +9,18 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import (
-    DEFAULT_FOV_DEG,
-    DEFAULT_HEIGHT,
+from ..camera import DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH
+from ..errors import InputError
+from ..framing import (
     DEFAULT_MARGIN,
     DEFAULT_UP,
-    DEFAULT_WIDTH,
     DEGENERATE_RADIUS,
     _cloud_points_and_up,
-    _real,
-    _vec3,
     bounding_sphere,
     fit_distance,
 )
-from ..errors import InputError
+from ..values import check_real as _real
+from ..values import check_vec3 as _vec3
 from .curves import lerp
 from .keyframes import (
     DEFAULT_EASING,

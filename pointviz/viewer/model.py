@@ -218,26 +218,24 @@ def render_scene(scene, settings: ViewerSettings):
     """
     from ..scene import DirectionalLight
 
-    for i in range(len(scene.objects)):  # build the trees once, on the shared objects
-        scene.surfel_scene(i)
-    out = scene.with_ground(scene.ground if settings.ground is None else settings.ground)
+    scene.build()  # the trees, once (shared with the copy returned)
+    ground = scene.ground if settings.ground is None else settings.ground
     if scene.lights is None and scene.look.key <= 0:  # a look without a key light ("flat")
-        return out
+        return scene.with_ground(ground)
     angle = scene.look.key_angle_deg
     for light in scene.lights or ():
         if isinstance(light, DirectionalLight):
             angle = light.angle_deg
             break
     direction = light_direction(settings.light_azimuth_deg, settings.light_elevation_deg, scene.up)
-    out.lights = [DirectionalLight(direction=tuple(float(v) for v in direction),
-                                   intensity=float(settings.light_intensity), angle_deg=angle)]
+    lights = [DirectionalLight(direction=tuple(float(v) for v in direction),
+                               intensity=float(settings.light_intensity), angle_deg=angle)]
     if scene.lights is None and scene.look.fill > 0:  # the look's shadowless fill, opposite
         fill = light_direction(settings.light_azimuth_deg + FILL_AZIMUTH_OFFSET_DEG,
                                FILL_ELEVATION_DEG, scene.up)
-        out.lights.append(DirectionalLight(direction=tuple(float(v) for v in fill),
-                                           intensity=scene.look.fill, angle_deg=0.0,
-                                           shadows=False))
-    return out
+        lights.append(DirectionalLight(direction=tuple(float(v) for v in fill),
+                                       intensity=scene.look.fill, angle_deg=0.0, shadows=False))
+    return scene.replace(ground=ground, lights=lights)
 
 
 def scene_clouds(scene) -> list:

@@ -203,7 +203,6 @@ def mesh_scene_of(scene):
     """
     from ..meshes import MeshGeometry
     from ..reconstruct import poisson
-    from ..scene import Scene
 
     geoms, faces, secs = [], 0, 0.0
     for obj in scene.objects:
@@ -215,8 +214,4 @@ def mesh_scene_of(scene):
         geoms.append(MeshGeometry(rec.vertices, rec.faces, rec.colors, name="poisson"))
         faces += len(rec.faces)
         secs += rec.seconds
-    out = Scene.__new__(Scene)
-    out.__dict__.update(scene.__dict__)
-    out.__dict__.pop("_extents", None)
-    out.objects = [type(o)(g, o.material) for o, g in zip(scene.objects, geoms)]
-    return out, f"mesh: Poisson depth {COMPARE_POISSON_DEPTH}, {faces:,} faces, {secs:.1f} s"
+    return scene.replace(clouds=geoms), f"mesh: Poisson depth {COMPARE_POISSON_DEPTH}, {faces:,} faces, {secs:.1f} s"

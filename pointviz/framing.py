@@ -1,0 +1,350 @@
+"""Where a camera should look to show a cloud: the shape of the data (an object or a terrain
+tile), the automatic viewing directions, and the framing that makes the points fill the image.
+
+:meth:`pointviz.camera.Camera.fit` is the entry point; the functions here take the camera class
+they build, so this module does not depend on the camera's own."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .errors import InputError
+from .values import check_fov, check_image_size, check_real, check_vec3
+
+if TYPE_CHECKING:
+    from .camera import Camera
+
+#: Default up vector (+Y), used when neither the caller nor the cloud says.
+DEFAULT_UP = (0.0, 1.0, 0.0)
+#: Default viewing direction of :meth:`Camera.fit` (from the eye toward the cloud): from the +Z
+#: side and slightly above for a +Y-up scene.
+DEFAULT_FIT_DIRECTION = (0.0, -0.3, -1.0)
+#: Bisection steps of the tight framing of an automatic view (relative precision 2^-steps).
+FIT_BISECTION_STEPS = 30
+#: Default padding of :meth:`Camera.fit`: the bounding sphere's image radius is the half size of
+#: the smaller image side divided by this.
+DEFAULT_MARGIN = 1.05
+#: Automatic views of :meth:`Camera.fit` (``direction=None``). An object is seen from a
+#: three-quarter view: OBJECT_AZIMUTH_DEG off the normal of its longest horizontal axis (its
+#: broad side), OBJECT_ELEVATION_DEG above the horizon. A terrain tile is seen from above at an
+#: oblique angle (one of TERRAIN_ELEVATIONS_DEG below the horizon), across its short or along its
+#: long horizontal axis: whichever fills the frame most.
+OBJECT_AZIMUTH_DEG = 30.0
+OBJECT_ELEVATION_DEG = 20.0
+TERRAIN_ELEVATIONS_DEG = (50.0, 62.0)
+#: Cells (columns, rows) of the occupancy grid that compares the terrain views.
+COVERAGE_GRID = (64, 48)
+#: Points used to compare the candidate terrain views.
+FIT_CANDIDATE_SAMPLE = 8000
+#: A cloud is a terrain tile when its height (along up, between the TERRAIN_QUANTILE and
+#: 1 - TERRAIN_QUANTILE quantiles) is below this fraction of its smaller horizontal extent.
+TERRAIN_FLATNESS = 0.25
+TERRAIN_QUANTILE = 0.01
+#: Points used to decide the shape and framing of a large cloud (an even subsample).
+FIT_SAMPLE = 50000
+#: Fraction of points Camera.fit may leave out of the frame (stray points of raw scans).
+FIT_OUTLIER_FRACTION = 0.002
+#: Below this many points every point is framed (too few to call any of them stray).
+FIT_ROBUST_MIN_POINTS = 2000
+#: Radius used by :meth:`Camera.fit` for a cloud whose points all coincide (scene units).
+DEGENERATE_RADIUS = 1.0
+
+
+def bounding_sphere(points: Any, name: str = "points") -> tuple[np.ndarray, float]:
+    """Bounding sphere of a point set: centre of the bounding box, radius to the farthest point.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Finite points, n >= 1.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    centre : ndarray, shape (3,), float64
+    radius : float
+        ``max |p - centre|``; 0 if all points coincide.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "iuf":
+        raise InputError(f"{name} must be an (n, 3) numeric array, got shape {pts.shape}")
+    if pts.shape[0] == 0:
+        raise InputError(f"{name} is empty")
+    pts = pts.astype(np.float64, copy=False)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise InputError(f"{name} contains NaN or inf")
+    centre = 0.5 * (lo + hi)
+    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", pts - centre, pts - centre))))
+    return centre, radius
+
+
+def fit_distance(
+    radius: float, fov_deg: float, width: int, height: int, margin: float = DEFAULT_MARGIN
+) -> float:
+    """Eye distance at which a sphere fills the smaller field of view with a margin.
+
+    The sphere's silhouette (a circle on the image, centred when the camera looks at the
+    sphere's centre) gets the radius ``min(width, height) / (2 * margin)`` pixels: its tangent
+    cone has half angle ``theta = atan(tan_half_min / margin)`` where ``tan_half_min`` is the
+    tangent of the smaller half field of view, so the distance is ``radius / sin(theta)``.
+
+    Parameters
+    ----------
+    radius : float
+        Sphere radius (> 0).
+    fov_deg : float
+        Vertical field of view, degrees.
+    width, height : int
+        Image size, pixels.
+    margin : float
+        Padding factor (> 0); 1 makes the sphere touch the image border.
+
+    Returns
+    -------
+    float
+        Distance from the eye to the sphere centre.
+    """
+    margin = check_real(margin, "margin")
+    if margin <= 0.0:
+        raise InputError(f"margin must be > 0, got {margin}")
+    tan_half = math.tan(math.radians(check_fov(fov_deg)) / 2.0)
+    aspect = check_image_size(width, "width") / check_image_size(height, "height")
+    tan_half_min = tan_half * min(1.0, aspect)
+    theta = math.atan(tan_half_min / margin)
+    return float(radius) / math.sin(theta)
+
+
+def _rotate_y_to(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` rotated by the smallest rotation that takes +Y to ``up``."""
+    y = np.array([0.0, 1.0, 0.0])
+    u = np.asarray(up, dtype=np.float64)
+    n = np.linalg.norm(u)
+    if not n > 0:
+        return v
+    u = u / n
+    axis = np.cross(y, u)
+    s, c = np.linalg.norm(axis), float(y @ u)
+    if s < 1e-12:
+        return v if c > 0 else -v
+    k = axis / s
+    return v * c + np.cross(k, v) * s + k * (k @ v) * (1.0 - c)
+
+
+def _cloud_points_and_up(cloud: Any) -> tuple[np.ndarray, Any]:
+    """Points (n, 3) and optional ``up`` of a cloud object (or a bare (n, 3) array)."""
+    points = getattr(cloud, "points", cloud)
+    return np.asarray(points), getattr(cloud, "up", None)
+
+
+def _horizontal_axes(pts: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit up, and the longest and shortest horizontal principal axes of the points."""
+    u = up / np.linalg.norm(up)
+    flat = pts - np.outer(pts @ u, u)
+    flat = flat - flat.mean(axis=0)
+    cov = flat.T @ flat
+    w, v = np.linalg.eigh(cov)
+    major = v[:, 2] - u * (v[:, 2] @ u)
+    if not np.linalg.norm(major) > 1e-12:  # no horizontal spread: any horizontal axis
+        major = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 0.0, 1.0])
+    major = major / np.linalg.norm(major)
+    minor = np.cross(u, major)
+    return u, major, minor
+
+
+def shape_kind(points: Any, up: Any = DEFAULT_UP) -> str:
+    """What a cloud looks like from its points: ``"terrain"`` or ``"object"``.
+
+    A terrain tile is flat and wide: its height along ``up`` (between the TERRAIN_QUANTILE and
+    1 - TERRAIN_QUANTILE quantiles, so stray points do not count) is below TERRAIN_FLATNESS
+    times its smaller horizontal extent (same quantiles, along its principal axes).
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+    up : array_like, shape (3,)
+
+    Returns
+    -------
+    str
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
+        return "object"
+    if len(pts) > FIT_SAMPLE:
+        pts = pts[:: len(pts) // FIT_SAMPLE]
+    u, major, minor = _horizontal_axes(pts, check_vec3(up, "up"))
+    q = (TERRAIN_QUANTILE, 1.0 - TERRAIN_QUANTILE)
+    height = np.diff(np.quantile(pts @ u, q))[0]
+    width = min(np.diff(np.quantile(pts @ major, q))[0], np.diff(np.quantile(pts @ minor, q))[0])
+    return "terrain" if width > 0 and height < TERRAIN_FLATNESS * width else "object"
+
+
+def _auto_directions(pts: np.ndarray, up: np.ndarray) -> list[np.ndarray]:
+    """The viewing directions :func:`fit_camera` may pick from the data's shape, best first
+    for an object (one three-quarter view); for a terrain tile, views across its short axis and
+    along its long axis at each of TERRAIN_ELEVATIONS_DEG (the one that fills the frame most is
+    kept)."""
+    u, major, minor = _horizontal_axes(pts, up)
+    # a deterministic side: the one facing the default view (+Z for +Y up)
+    front = _rotate_y_to(-np.asarray(DEFAULT_FIT_DIRECTION, dtype=np.float64), u)
+    if minor @ front < 0:
+        minor, major = -minor, -major
+    if shape_kind(pts, u) == "terrain":
+        # the principal axes, and the data's own horizontal axes (LiDAR tiles are cut along
+        # their map grid, which the principal axes of an irregular tile miss)
+        sides = [minor, major]
+        for axis in np.eye(3):
+            h = axis - u * (axis @ u)
+            if np.linalg.norm(h) > 0.5:
+                h = h / np.linalg.norm(h)
+                sides.append(h if h @ front >= 0 else -h)
+        out = []
+        for elev_deg in TERRAIN_ELEVATIONS_DEG:
+            elev = math.radians(elev_deg)
+            for side in sides:
+                out.append(-math.cos(elev) * side - math.sin(elev) * u)
+        return out
+    az, elev = math.radians(OBJECT_AZIMUTH_DEG), math.radians(OBJECT_ELEVATION_DEG)
+    horizontal = math.cos(az) * minor + math.sin(az) * major
+    return [-math.cos(elev) * horizontal - math.sin(elev) * u]
+
+
+def frame_coverage(camera: "Camera", points: np.ndarray) -> float:
+    """Fraction of the image's COVERAGE_GRID cells that some projected point falls in: how much
+    of the frame a dense cloud fills (a lower bound for a sparse one)."""
+    px, depth = camera.project(points)
+    ok = (depth > 0) & np.all((px >= 0) & (px < [camera.width, camera.height]), axis=1)
+    gx, gy = COVERAGE_GRID
+    cells = (px[ok] / [camera.width, camera.height] * [gx, gy]).astype(np.int64)
+    return len(np.unique(cells[:, 1] * gx + cells[:, 0])) / (gx * gy)
+
+
+def _fill_frame(camera: "Camera", pts: np.ndarray, outliers: float, margin: float) -> "Camera":
+    """``camera`` moved along its view direction and sideways so that the points (all but
+    ``outliers`` on each side) fill the image shrunk by ``margin``, centred.
+
+    For an eye distance ``d`` the target is recentred on the points' projected bounds (a few
+    fixed-point steps), and ``d`` is bisected to the closest eye whose frame holds them all,
+    in front of the eye.
+    """
+    f, r, u = camera.forward, camera.right, camera.true_up
+    half_x = camera.tan_half * camera.width / camera.height / margin
+    half_y = camera.tan_half / margin
+    q = (outliers / 2, 1.0 - outliers / 2) if outliers > 0 else None
+    centre0 = camera.target
+
+    # the points along the camera's axes once: each eye below only shifts them (155 calls on
+    # a FIT_SAMPLE-point sample for a default fit)
+    along_f, along_r, along_u = pts @ f, pts @ r, pts @ u
+
+    def bounds(eye):
+        depth = along_f - eye @ f
+        if not np.all(depth > 0):
+            return None
+        x, y = (along_r - eye @ r) / depth, (along_u - eye @ u) / depth
+        if q is None:
+            return x.min(), x.max(), y.min(), y.max()
+        (x0, x1), (y0, y1) = np.quantile(x, q), np.quantile(y, q)
+        return x0, x1, y0, y1
+
+    def place(d):
+        """Target for distance d, and whether the framed points fit."""
+        target = centre0
+        for _ in range(4):
+            b = bounds(target - d * f)
+            if b is None:
+                return target, False
+            x0, x1, y0, y1 = b
+            target = target + d * (0.5 * (x0 + x1) * r + 0.5 * (y0 + y1) * u)
+        b = bounds(target - d * f)
+        if b is None:
+            return target, False
+        x0, x1, y0, y1 = b
+        fits = (x1 - x0) / 2 <= half_x * (1 + 1e-9) and (y1 - y0) / 2 <= half_y * (1 + 1e-9)
+        return target, fits
+
+    far = camera.distance
+    target, ok = place(far)
+    while not ok and far < 1e6 * camera.distance:
+        far *= 2.0
+        target, ok = place(far)
+    if not ok:
+        return camera
+    near = 0.0
+    for _ in range(FIT_BISECTION_STEPS):
+        mid = 0.5 * (near + far)
+        t, fits = place(mid)
+        if fits:
+            far, target = mid, t
+        else:
+            near = mid
+    return type(camera)(target - far * f, target, camera.up, camera.fov_deg, camera.width,
+                        camera.height)
+
+
+def fit_camera(cls: type, cloud: Any, direction: Any, fov_deg: float, width: int, height: int,
+               up: Any, margin: float, outliers: float):
+    """The camera (an instance of ``cls``) that frames a whole cloud: the work of
+    :meth:`pointviz.camera.Camera.fit`, whose docstring states the rules; the arguments are
+    the same."""
+    points, cloud_up = _cloud_points_and_up(cloud)
+    centre, radius = bounding_sphere(points, "cloud.points")
+    outliers = check_real(outliers, "outliers")
+    if not 0.0 <= outliers <= 0.1:
+        raise InputError(f"outliers must be in [0, 0.1], got {outliers}")
+    margin = check_real(margin, "margin")
+    if margin <= 0.0:
+        raise InputError(f"margin must be > 0, got {margin}")
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < FIT_ROBUST_MIN_POINTS:
+        outliers = 0.0
+    if len(pts) > FIT_SAMPLE:
+        pts = pts[:: len(pts) // FIT_SAMPLE]
+    if outliers > 0.0:
+        lo = np.quantile(pts, outliers / 2, axis=0)
+        hi = np.quantile(pts, 1.0 - outliers / 2, axis=0)
+        centre = 0.5 * (lo + hi)
+        dist = np.sqrt(np.einsum("ij,ij->i", pts - centre, pts - centre))
+        radius = float(np.quantile(dist, 1.0 - outliers))
+    if up is None:
+        up = cloud_up if cloud_up is not None else DEFAULT_UP
+        up_name = "cloud.up" if cloud_up is not None else "up"
+    else:
+        up_name = "up"
+    up = check_vec3(up, up_name)
+    auto = direction is None
+    candidates = []
+    if auto:
+        candidates = _auto_directions(pts, up)
+        direction = candidates[0]
+    direction = check_vec3(direction, "direction")
+    norm = float(np.linalg.norm(direction))
+    if norm == 0.0:
+        raise InputError("direction must be a non-zero vector")
+    if np.array_equal(direction, DEFAULT_FIT_DIRECTION):
+        direction = _rotate_y_to(np.asarray(DEFAULT_FIT_DIRECTION, dtype=np.float64), up)
+        norm = float(np.linalg.norm(direction))
+    direction = direction / norm
+    if radius == 0.0:
+        radius = DEGENERATE_RADIUS
+        auto = False
+    distance = fit_distance(radius, fov_deg, width, height, margin)
+    camera = cls(centre - distance * direction, centre, up, fov_deg, width, height)
+    if not auto:
+        return camera
+    if len(candidates) > 1:
+        few = pts[:: max(1, len(pts) // FIT_CANDIDATE_SAMPLE)]
+        best = -1.0
+        for cand in candidates:
+            c = cand / np.linalg.norm(cand)
+            trial = _fill_frame(cls(centre - distance * c, centre, up, fov_deg, width, height),
+                                few, outliers, margin)
+            cover = frame_coverage(trial, few)
+            if cover > best + 1e-3:
+                best, camera = cover, trial
+    return _fill_frame(camera, pts, outliers, margin)
