@@ -5,6 +5,10 @@
 #include <cmath>
 #include <limits>
 
+#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
+#include <emmintrin.h>
+#endif
+
 #include "pointviz/parallel.h"
 #include "pointviz/pca.h"
 
@@ -14,6 +18,9 @@ namespace {
 
 /// Most directions sampled per cell.
 constexpr uint32_t kMaxDirections = 64;
+/// Directions are processed in groups of this many (one AVX register of floats; divides
+/// kMaxDirections).
+constexpr uint32_t kLanes = 8;
 
 /// Linear-interpolated quantile (numpy's default) of the positive values of `v`.
 double quantile(std::vector<float> v, double q) {
@@ -39,7 +46,9 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     uint32_t nd = std::min<uint32_t>(std::max<uint32_t>(opt.directions, 3), kMaxDirections);
     // directions in float: the cell of each is a min over neighbours of one division, which the
     // compiler runs 8 directions at a time
-    alignas(32) float cs[kMaxDirections], sn[kMaxDirections];
+    // padded to whole SIMD lanes with proj = 0 directions, which never get a bisector
+    const uint32_t nd_lanes = (nd + kLanes - 1) / kLanes * kLanes;
+    alignas(32) float cs[kMaxDirections] = {}, sn[kMaxDirections] = {};
     for (uint32_t a = 0; a < nd; ++a) {
         double t = 2.0 * M_PI * a / nd;
         cs[a] = float(std::cos(t));
@@ -58,7 +67,7 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
             const uint32_t *row = nb.row(i);
             double d1 = 0, dk = 0;
             const float inf = std::numeric_limits<float>::infinity();
-            for (uint32_t a = 0; a < nd; ++a) edge[a] = inf;
+            for (uint32_t a = 0; a < nd_lanes; ++a) edge[a] = inf;
             // along each direction the cell ends at the nearest perpendicular bisector
             for (uint32_t m = 0; m < k; ++m) {
                 const double *q = points + 3 * size_t(row[m]);
@@ -71,11 +80,26 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
                 dk = std::max(dk, dist);
                 if (!(r2 > 0.f)) continue;
                 float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
-                for (uint32_t a = 0; a < nd; ++a) {
+                // four directions at a time over whole lanes (the padding directions have
+                // proj = 0: never a bisector); every lane rounds as the scalar loop does
+#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
+                const __m128 vx = _mm_set1_ps(x), vy = _mm_set1_ps(y), vr2 = _mm_set1_ps(r2),
+                             vfloor = _mm_set1_ps(floor_), vinf = _mm_set1_ps(inf);
+                for (uint32_t a = 0; a < nd_lanes; a += 4) {
+                    __m128 proj = _mm_add_ps(_mm_mul_ps(vx, _mm_load_ps(cs + a)),
+                                             _mm_mul_ps(vy, _mm_load_ps(sn + a)));
+                    __m128 s = _mm_div_ps(vr2, _mm_add_ps(proj, proj));
+                    __m128 ok = _mm_cmpgt_ps(proj, vfloor);
+                    s = _mm_or_ps(_mm_and_ps(ok, s), _mm_andnot_ps(ok, vinf));
+                    _mm_store_ps(edge + a, _mm_min_ps(s, _mm_load_ps(edge + a)));
+                }
+#else
+                for (uint32_t a = 0; a < nd_lanes; ++a) {
                     float proj = x * cs[a] + y * sn[a];
                     float s = proj > floor_ ? r2 / (2.f * proj) : inf;
                     edge[a] = std::min(edge[a], s);
                 }
+#endif
             }
             double cell = 0.0;
             for (uint32_t a = 0; a < nd; ++a)

@@ -23,6 +23,16 @@ struct Sums {
     Vec3 csum;     ///< sum of colours
 };
 
+/// Component-wise min / max that ignore a NaN in `b` (as vmin / vmax do) but compile to one
+/// instruction each instead of calls to fminf / fmaxf: the build's box loops run over every
+/// surfel at every level (a third of the topology's time went to those calls).
+inline Vec3 lower(Vec3 a, Vec3 b) {
+    return {b.x < a.x ? b.x : a.x, b.y < a.y ? b.y : a.y, b.z < a.z ? b.z : a.z};
+}
+inline Vec3 upper(Vec3 a, Vec3 b) {
+    return {b.x > a.x ? b.x : a.x, b.y > a.y ? b.y : a.y, b.z > a.z ? b.z : a.z};
+}
+
 }  // namespace
 
 SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const BuildOptions &opt) {
@@ -77,8 +87,8 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                 if (r.size() <= leaf) continue;
                 Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
                 for (uint32_t k = r.b; k < r.e; ++k) {
-                    lo = vmin(lo, items[k].p);
-                    hi = vmax(hi, items[k].p);
+                    lo = lower(lo, items[k].p);
+                    hi = upper(hi, items[k].p);
                 }
                 Vec3 ext = hi - lo;
                 int axis = ext.x >= ext.y ? (ext.x >= ext.z ? 0 : 2) : (ext.y >= ext.z ? 1 : 2);
@@ -142,8 +152,8 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
                         sm.nsum += s.n;
                         sm.csum += Vec3{channel(s.rgba, 0), channel(s.rgba, 1), channel(s.rgba, 2)};
                         Vec3 ext{s.r, s.r, s.r};
-                        bx.lo = vmin(bx.lo, s.p - ext);
-                        bx.hi = vmax(bx.hi, s.p + ext);
+                        bx.lo = lower(bx.lo, s.p - ext);
+                        bx.hi = upper(bx.hi, s.p + ext);
                     }
                     c = c / float(r.size());
                     boxes[i] = bx;

@@ -5,11 +5,14 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <numeric>
 #include <random>
 #include <vector>
 
+#include "pointviz/pca.h"
 #include "pointviz/preprocess.h"
+#include "pointviz/radii.h"
 #include "pointviz/scan_neighbours.h"
 #include "check.h"
 
@@ -236,6 +239,64 @@ void test_degenerate_neighbourhoods_give_finite_output() {
     CHECK(nr.est.arbitrary == v.n, "a line: %zu of %zu normals arbitrary", nr.est.arbitrary, v.n);
 }
 
+/// The cell radii of coverage_radii (before its global cap) computed one direction at a time,
+/// the plain formula of radii.h: the SIMD loop must give the same floats bit for bit, for any
+/// number of directions (padding lanes included).
+void test_radii_match_the_scalar_formula() {
+    std::vector<double> p = sphere_points(600, 11, 0.02);
+    size_t n = p.size() / 3;
+    std::vector<float> nrm(3 * n);
+    for (size_t i = 0; i < 3 * n; ++i) nrm[i] = float(p[i]);  // the sphere's normals, roughly
+    const uint32_t k = 10;
+    NeighbourTable t;
+    t.n = n, t.k = k;
+    for (size_t i = 0; i < n; ++i) {
+        std::vector<uint32_t> row = brute_row(p, i, k);
+        t.index.insert(t.index.end(), row.begin(), row.end());
+    }
+    for (uint32_t nd : {3u, 5u, 16u, 64u}) {
+        CoverOptions co;
+        co.directions = nd;
+        co.global_cap = 1e30;  // the per-point radii only
+        std::vector<float> got = coverage_radii(p.data(), nrm.data(), t, co);
+        size_t bad = 0;
+        const float inf = std::numeric_limits<float>::infinity();
+        for (size_t i = 0; i < n; ++i) {
+            double nn[3] = {nrm[3 * i], nrm[3 * i + 1], nrm[3 * i + 2]}, t1[3], t2[3];
+            double l = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
+            for (double &c : nn) c /= l;
+            tangent_basis(nn, t1, t2);
+            std::vector<float> edge(nd, inf);
+            double d1 = 0, dk = 0;
+            for (uint32_t m = 0; m < k; ++m) {
+                const double *q = &p[3 * size_t(t.row(i)[m])], *o = &p[3 * i];
+                double d[3] = {q[0] - o[0], q[1] - o[1], q[2] - o[2]};
+                float x = float(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]);
+                float y = float(d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]);
+                float r2 = x * x + y * y;
+                double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                if (m == 0) d1 = dist;
+                dk = std::max(dk, dist);
+                if (!(r2 > 0.f)) continue;
+                float floor_ = 1e-6f * std::sqrt(r2);
+                for (uint32_t a = 0; a < nd; ++a) {
+                    double th = 2.0 * M_PI * a / nd;
+                    float proj = x * float(std::cos(th)) + y * float(std::sin(th));
+                    if (proj > floor_) edge[a] = std::min(edge[a], r2 / (2.f * proj));
+                }
+            }
+            double cell = 0.0;
+            for (float e : edge)
+                if (e < inf) cell = std::max(cell, double(e));
+            double r = std::min(co.margin * cell, co.cap * dk);
+            if (!(r > 0)) r = std::max(0.5 * d1, co.cap * dk);
+            float want = r > 0 ? std::max(float(r), std::numeric_limits<float>::min()) : 0.f;
+            bad += got[i] != want;
+        }
+        CHECK(bad == 0, "%u directions: %zu of %zu radii differ from the scalar formula", nd, bad, n);
+    }
+}
+
 }  // namespace
 
 int main() {
@@ -245,6 +306,7 @@ int main() {
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();
     test_degenerate_neighbourhoods_give_finite_output();
+    test_radii_match_the_scalar_formula();
     std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
                 pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
