@@ -11,8 +11,9 @@ machine. Times are wall clock (``--clock``); the process CPU time is recorded to
 
 ``--whole-process`` measures what one machine holds instead: for each size a fresh process
 samples a unit sphere (Fibonacci lattice, generated in chunks straight into the arrays a
-``PointCloud`` keeps), builds the ``full`` scene by wall clock, drops the cloud
-(``SurfelScene(keep_cloud=False)``) and traces 400x400 primary rays; its peak resident set
+``PointCloud`` keeps), frames it (``Camera.fit``), builds the ``full`` scene by wall clock from
+the cloud handed over (``SurfelScene(consume_cloud=True)``: each array is freed once the build
+has copied it) and traces 400x400 primary rays; its peak resident set
 (``VmHWM`` in /proc/self/status) over the surfel count is the whole process's bytes per surfel,
 Python arrays, build temporaries and interpreter included.
 
@@ -170,7 +171,7 @@ def one_process(n: int, threads: int) -> dict:
     cam = pointviz.Camera.fit(cloud, width=WHOLE_PROCESS_PIXELS, height=WHOLE_PROCESS_PIXELS)
     rays = np.asarray(cam.rays(), dtype=np.float32)
     start = time.perf_counter()
-    scene = pointviz.SurfelScene(cloud, variant="full", threads=threads, keep_cloud=False)
+    scene = pointviz.SurfelScene(cloud, variant="full", threads=threads, consume_cloud=True)
     build_s = time.perf_counter() - start
     del cloud
     gc.collect()

@@ -60,18 +60,30 @@ def unit_vector(name: str, value) -> np.ndarray:
     return np.ascontiguousarray(arr / norm, dtype=np.float64)
 
 
+#: Rows per block of the checks that compute on a whole array: bounds their temporaries (a
+#: 100M-point cloud's normals in float64 at once would be 2.4 GB beside the cloud).
+CHECK_BLOCK = 1 << 18
+
+
 def normals(value, n: int) -> np.ndarray:
-    arr = rows3("normals", value, n).astype(np.float64)
-    # the same sums as np.linalg.norm(arr, axis=1), without its temporaries (half the time at 1M)
-    length = np.sqrt(arr[:, 0] * arr[:, 0] + arr[:, 1] * arr[:, 1] + arr[:, 2] * arr[:, 2])
-    zero = np.flatnonzero(length == 0.0)
-    if zero.size:
+    arr = rows3("normals", value, n)
+    out = np.empty(arr.shape, np.float32)
+    zeros, first = 0, -1
+    for b in range(0, len(arr), CHECK_BLOCK):
+        blk = arr[b:b + CHECK_BLOCK].astype(np.float64)
+        # the same sums as np.linalg.norm(blk, axis=1), without its temporaries
+        length = np.sqrt(blk[:, 0] * blk[:, 0] + blk[:, 1] * blk[:, 1] + blk[:, 2] * blk[:, 2])
+        zero = np.flatnonzero(length == 0.0)
+        if zero.size:
+            first = first if zeros else b + int(zero[0])
+            zeros += zero.size
+        elif not zeros:  # in float64, then rounded
+            np.divide(blk, length[:, None], out=out[b:b + CHECK_BLOCK], casting="unsafe")
+    if zeros:
         raise InputError(
-            f"normals: {zero.size} rows have zero length (first at row {zero[0]}); "
+            f"normals: {zeros} rows have zero length (first at row {first}); "
             "give a direction for every point or leave normals out to estimate them"
         )
-    out = np.empty(arr.shape, np.float32)
-    np.divide(arr, length[:, None], out=out, casting="unsafe")  # in float64, then rounded
     return out
 
 

@@ -97,6 +97,26 @@ def _rng(rng) -> np.random.Generator:
     return np.random.default_rng(rng)
 
 
+class _Handed:
+    """An array attribute of a :class:`PointCloud` that :meth:`PointCloud.hand_over` can take
+    away: reading it afterwards raises InputError instead of returning a freed array."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name, self.slot = name, "_held" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        state = obj.__dict__
+        if state.get("_handed_over"):
+            raise InputError("cloud: its arrays were handed over to a SurfelScene "
+                             "(consume_cloud=True); load or copy the cloud again to use it")
+        return state[self.slot]
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.slot] = value
+
+
 # ---------------------------------------------------------------------------------------------
 
 
@@ -136,6 +156,11 @@ class PointCloud:
         If an array has the wrong shape or dtype, contains NaN/inf, a normal has zero length, a
         radius is <= 0, a colour is outside [0, 1], the lengths differ, or the cloud is empty.
     """
+
+    _points = _Handed()
+    _normals = _Handed()
+    _radii = _Handed()
+    _colors = _Handed()
 
     def __init__(
         self,
@@ -321,7 +346,36 @@ class PointCloud:
         lo, hi = self.bounds
         return float(np.linalg.norm(hi - lo))
 
+    @property
+    def handed_over(self) -> bool:
+        """Whether :meth:`hand_over` took this cloud's arrays (it can no longer be used)."""
+        return bool(self.__dict__.get("_handed_over"))
+
+    def hand_over(self) -> dict:
+        """Give the positions, normals, radii and colours away, for a consumer that frees each
+        as soon as it has copied it (``SurfelScene(consume_cloud=True)``): the cloud keeps no
+        reference to them, so that they are freed when the consumer drops its own.
+
+        Normals and radii that were not given are estimated first. Afterwards every use of the
+        arrays (``points``, ``len()``, ``bounds``, ...) raises InputError; the other attributes
+        (``up``, ``name``, ``viewpoints``, ...) stay.
+
+        Returns
+        -------
+        dict
+            ``points`` (n, 3) float64, ``normals`` (n, 3) float32, ``radii`` (n,) float32 and
+            ``colors`` (n, 3) float32 or None.
+        """
+        arrays = {"points": self.points, "normals": self.normals, "radii": self.radii,
+                  "colors": self.colors}
+        for name in ("_points", "_normals", "_radii", "_colors"):
+            setattr(self, name, None)
+        self.__dict__["_handed_over"] = True
+        return arrays
+
     def __repr__(self) -> str:
+        if self.handed_over:
+            return "PointCloud(arrays handed over)"
         parts = [f"{len(self)} points"]
         parts.append("normals" if self.has_normals else "normals estimated lazily")
         if self.has_colors:

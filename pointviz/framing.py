@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .arrays import bounds as _bounds
 from .errors import InputError
 from .values import check_fov, check_image_size, check_real, check_vec3
 
@@ -49,6 +50,8 @@ FIT_SAMPLE = 50000
 FIT_OUTLIER_FRACTION = 0.002
 #: Below this many points every point is framed (too few to call any of them stray).
 FIT_ROBUST_MIN_POINTS = 2000
+#: Points per block of :func:`bounding_sphere`: bounds its temporaries.
+SPHERE_BLOCK = 1 << 18
 #: Radius used by :meth:`Camera.fit` for a cloud whose points all coincide (scene units).
 DEGENERATE_RADIUS = 1.0
 
@@ -75,12 +78,14 @@ def bounding_sphere(points: Any, name: str = "points") -> tuple[np.ndarray, floa
     if pts.shape[0] == 0:
         raise InputError(f"{name} is empty")
     pts = pts.astype(np.float64, copy=False)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    lo, hi = _bounds(pts)
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise InputError(f"{name} contains NaN or inf")
     centre = 0.5 * (lo + hi)
-    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", pts - centre, pts - centre))))
-    return centre, radius
+    # block by block: the whole cloud's offsets at once would be 56 bytes per point
+    r2 = max(float(np.max(np.einsum("ij,ij->i", d, d)))
+             for d in (pts[b:b + SPHERE_BLOCK] - centre for b in range(0, len(pts), SPHERE_BLOCK)))
+    return centre, float(np.sqrt(r2))
 
 
 def fit_distance(

@@ -462,3 +462,21 @@ def test_rays_match_the_core_camera_model(seed):
                              for i in range(cam.height) for j in range(cam.width)])
         np.testing.assert_allclose(rays[:, 3:], expected, rtol=0, atol=2e-6)
         np.testing.assert_allclose(rays[:, :3], np.broadcast_to(cam.eye, rays[:, :3].shape))
+
+
+def test_bounding_sphere_of_a_large_cloud_is_the_whole_array_formula():
+    """Computed block by block (bounded temporaries), it equals the one-expression formula."""
+    from pointviz.framing import SPHERE_BLOCK
+
+    rng = np.random.default_rng(11)
+    pts = rng.normal(size=(2 * SPHERE_BLOCK + 7, 3)) * [1e3, 2.0, 0.5] + [4e6, -3.0, 1.0]
+    pts[SPHERE_BLOCK + 3] = [4e6 + 9e3, 0.0, 0.0]  # the farthest point in the second block
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", pts - centre, pts - centre))))
+    c, r = bounding_sphere(pts)
+    np.testing.assert_array_equal(c, centre)
+    assert r == radius
+    pts[-1, 2] = np.nan
+    with pytest.raises(InputError, match="NaN or inf"):
+        bounding_sphere(pts)

@@ -499,3 +499,20 @@ def test_import_does_no_heavy_work():
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_normals_of_a_large_cloud_are_checked_block_by_block():
+    """Normalised in blocks (bounded temporaries): the same float32 values as the whole-array
+    formula, and zero rows in several blocks are all counted, the first one named."""
+    from pointviz.array_checks import CHECK_BLOCK
+
+    rng = np.random.default_rng(12)
+    n = 2 * CHECK_BLOCK + 5
+    pts = rng.normal(size=(n, 3))
+    nrm = rng.normal(size=(n, 3)) * rng.uniform(1e-3, 1e3, (n, 1))
+    whole = (nrm / np.sqrt((nrm * nrm).sum(axis=1))[:, None]).astype(np.float32)
+    got = PointCloud(pts, normals=nrm, radii=0.1).normals
+    np.testing.assert_allclose(got, whole, rtol=0, atol=1e-7)
+    nrm[[CHECK_BLOCK + 1, 3, n - 1]] = 0.0
+    with pytest.raises(InputError, match=r"normals: 3 rows have zero length \(first at row 3\)"):
+        PointCloud(pts, normals=nrm, radii=0.1)

@@ -388,3 +388,93 @@ def test_keep_cloud_false_frees_the_arrays_and_answers_alike(rng):
     del cloud, kept
     gc.collect()
     assert ref() is None
+
+
+def _jumble_cloud(seed, n=3000):
+    """Random disks with colours, every array owned by the cloud alone (nothing else refers to
+    them once this returns)."""
+    rng = np.random.default_rng(seed)
+    return PointCloud(rng.uniform(-1, 1, (n, 3)), normals=rng.normal(size=(n, 3)),
+                      radii=rng.uniform(0.02, 0.08, n), colors=rng.uniform(0, 1, (n, 3)))
+
+
+def test_consume_cloud_frees_each_array_and_gives_the_same_hits(rng):
+    import gc
+    import weakref
+
+    o = rng.uniform(-2, 2, (400, 3))
+    d = rng.normal(size=(400, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    rays = np.hstack([o, d])
+    kept_cloud = _jumble_cloud(5)
+    t_bf, idx_bf = brute_first_disk(kept_cloud, rays)
+    configs = [dict(variant=v, leaf_size=4) for v in ("full", "bvh", "lod")]
+    configs.append(dict(variant="full", leaf_size=4, interpolation="none", cull=False))
+    for kw in configs:
+        kept = SurfelScene(kept_cloud, **kw)
+        cloud = _jumble_cloud(5)
+        arrays = [weakref.ref(getattr(cloud, k)) for k in ("points", "normals", "radii", "colors")]
+        gone = SurfelScene(cloud, consume_cloud=True, **kw)
+        gc.collect()
+        assert all(ref() is None for ref in arrays), "the build kept a handed-over array alive"
+        assert gone.cloud is None and cloud.handed_over
+        assert gone.memory_bytes == kept.memory_bytes and gone.n_nodes == kept.n_nodes
+        a, b = kept.cast_rays(rays), gone.cast_rays(rays)
+        for key in ("t_hit", "normals", "colors", "radii", "index", "count", "positions"):
+            np.testing.assert_array_equal(b[key], a[key], err_msg=f"{kw}: {key}")
+        if kw.get("interpolation") == "none":  # nearest disk, both sides: brute force's answer
+            np.testing.assert_allclose(b["t_hit"], t_bf, rtol=1e-4, atol=1e-5)
+            assert (b["index"] == idx_bf).mean() > 0.995  # ties may pick either disk
+
+
+def test_a_consumed_cloud_says_so(rng):
+    import pickle
+
+    cloud = _jumble_cloud(6, 500)
+    scene = SurfelScene(cloud, consume_cloud=True)
+    assert repr(cloud) == "PointCloud(arrays handed over)"
+    for use in (lambda: cloud.points, lambda: len(cloud), lambda: cloud.bounds,
+                lambda: cloud.normals, lambda: SurfelScene(cloud),
+                lambda: SurfelScene(cloud, consume_cloud=True)):
+        with pytest.raises(InputError, match="handed over"):
+            use()
+    with pytest.raises(InputError, match="cannot be pickled"):
+        pickle.dumps(scene)
+    with pytest.raises(InputError, match="needs a PointCloud"):
+        SurfelScene(shapes.sphere(100).points.view(), consume_cloud=True)
+    # refused before anything is handed over: the cloud stays usable
+    fresh = _jumble_cloud(6, 500)
+    with pytest.raises(InputError, match="keep_cloud=False"):
+        SurfelScene(fresh, variant="kdtree", consume_cloud=True)
+    assert not fresh.handed_over and len(fresh) == 500
+
+
+def test_estimated_normals_and_radii_are_handed_over_too(rng):
+    pts = rng.normal(size=(2000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    kept = SurfelScene(PointCloud(pts))
+    gone = SurfelScene(PointCloud(pts), consume_cloud=True)
+    rays = rays_at_sphere(rng, 500)
+    np.testing.assert_array_equal(gone.cast_rays(rays)["t_hit"], kept.cast_rays(rays)["t_hit"])
+
+
+def test_core_build_stages_run_in_order(sphere20k):
+    from pointviz import _core
+
+    c = sphere20k
+    build = _core.SurfelTreeBuild(c.points, (0.0, 0.0, 0.0), leaf_size=8, box_depth=3)
+    assert build.next_stage == 2 and build.n_surfels == len(c)
+    with pytest.raises(RuntimeError, match="out of order"):
+        build.finish()
+    with pytest.raises(ValueError, match="wrong shape"):
+        build.add_surfels(c.normals[:10], c.radii, None)
+    build.add_surfels(c.normals, c.radii, None)
+    tree = build.finish()
+    with pytest.raises(RuntimeError, match="spent"):
+        build.finish()
+    one_call = _core.SurfelTree(c.points, c.normals, c.radii, None, (0.0, 0.0, 0.0),
+                                leaf_size=8, box_depth=3)
+    np.testing.assert_array_equal(tree.surfel_view().view(np.uint32),
+                                  one_call.surfel_view().view(np.uint32))
+    for key, value in one_call.node_arrays().items():
+        np.testing.assert_array_equal(np.asarray(tree.node_arrays()[key]), np.asarray(value))

@@ -168,6 +168,54 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
     });
 }
 
+/// Stage 1 of a staged build (see SurfelTreeBuild): positions and topology.
+std::unique_ptr<SurfelTreeBuild> make_tree_build(CArray<double> points, std::array<double, 3> origin,
+                                 uint32_t leaf_size, uint32_t box_depth, int threads,
+                                 nb::object poll) {
+    size_t n = points.shape(0);
+    check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
+    std::vector<double> copy;
+    const double *p = aligned_data(points.data(), 3 * n, copy);
+    BuildOptions opt{leaf_size, box_depth, threads};
+    Progress progress;
+    return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &pr) {
+        auto build = std::make_unique<SurfelTreeBuild>(p, n, origin.data(), opt);
+        pr.check();
+        return build;
+    });
+}
+
+/// Stage 2: the surfels from normals, radii and colours.
+void tree_build_add_surfels(SurfelTreeBuild &b, CArray<float> normals, CArray<float> radii,
+                            std::optional<CArray<float>> colors, nb::object poll) {
+    size_t n = b.size();
+    check_rows("normals", normals.ndim(), normals.shape(0), normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
+    check_rows("radii", radii.ndim(), radii.shape(0), 0, n, 0);
+    SurfelCopies keep;
+    const float *nn = aligned_data(normals.data(), 3 * n, keep.normals);
+    const float *rr = aligned_data(radii.data(), n, keep.radii);
+    const float *cc = nullptr;
+    if (colors) {
+        check_rows("colors", colors->ndim(), colors->shape(0), colors->ndim() > 1 ? colors->shape(1) : 0, n, 3);
+        cc = aligned_data(colors->data(), 3 * n, keep.colors);
+    }
+    Progress progress;
+    run_with_progress(progress, poll_or_ambient(poll), [&](Progress &pr) {
+        b.add_surfels(nn, rr, cc);
+        pr.check();
+    });
+}
+
+/// Stage 3: the nodes; the finished tree.
+std::unique_ptr<SurfelTree> tree_build_finish(SurfelTreeBuild &b, nb::object poll) {
+    Progress progress;
+    return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &pr) {
+        auto tree = std::make_unique<SurfelTree>(b.finish());
+        pr.check();
+        return tree;
+    });
+}
+
 template <class T, class Tree>
 nb::tuple cast_binding(const Tree &t, CArray<T> rays, const TraceOptions &opt,
                        float pixel_angle, int threads, bool want_stats) {
@@ -563,6 +611,15 @@ NB_MODULE(_core, m) {
 
     m.def("render", &run_render, "scene"_a, "camera"_a, "settings"_a, "poll"_a.none(),
           "nice"_a = 0);
+
+    nb::class_<SurfelTreeBuild>(m, "SurfelTreeBuild")
+        .def(nb::new_(&make_tree_build), "points"_a, "origin"_a, "leaf_size"_a = 8,
+             "box_depth"_a = 0, "threads"_a = 0, "poll"_a.none() = nb::none())
+        .def("add_surfels", &tree_build_add_surfels, "normals"_a, "radii"_a, "colors"_a.none(),
+             "poll"_a.none() = nb::none())
+        .def("finish", &tree_build_finish, "poll"_a.none() = nb::none())
+        .def_prop_ro("next_stage", &SurfelTreeBuild::next_stage)
+        .def_prop_ro("n_surfels", &SurfelTreeBuild::size);
 
     nb::class_<SurfelTree>(m, "SurfelTree")
         .def(nb::new_(&make_tree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),

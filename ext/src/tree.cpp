@@ -11,12 +11,6 @@
 namespace pointviz {
 namespace {
 
-/// Half-open range of the index array that a node owns during the build.
-struct Range {
-    uint32_t b, e;
-    uint32_t size() const { return e - b; }
-};
-
 /// Per-node sums carried up the tree during the build.
 struct Sums {
     Vec3 nsum;     ///< sum of normals
@@ -33,28 +27,44 @@ inline Vec3 upper(Vec3 a, Vec3 b) {
     return {b.x > a.x ? b.x : a.x, b.y > a.y ? b.y : a.y, b.z > a.z ? b.z : a.z};
 }
 
+/// Seconds since `t0`.
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
 }  // namespace
 
 SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const BuildOptions &opt) {
+    SurfelTreeBuild build(in.points, in.n, origin, opt);
+    build.add_surfels(in.normals, in.radii, in.colors);
+    *this = build.finish();
+}
+
+void SurfelTreeBuild::check_stage(int stage) const {
+    if (stage_ != stage)
+        throw std::logic_error(stage_ == 4 ? "the tree build is spent: finish() ran already"
+                                           : "tree build stages out of order: add_surfels(), then finish()");
+}
+
+SurfelTreeBuild::SurfelTreeBuild(const double *points, size_t n, const double origin[3],
+                                 const BuildOptions &opt) {
     auto t0 = std::chrono::steady_clock::now();
-    const size_t n = in.n;
     if (n == 0) throw std::invalid_argument("cannot build a tree of zero surfels");
     if (n >= kMaxTreeSurfels)
         throw std::length_error("too many surfels for one tree (limit 2^27 = 134,217,728)");
-    const uint32_t leaf = std::clamp<uint32_t>(opt.leaf_size, 1u, kMaxLeafSize);
-    const int threads = resolve_threads(opt.threads);
-    for (int k = 0; k < 3; ++k) origin_[k] = origin[k];
+    n_ = n;
+    leaf_ = std::clamp<uint32_t>(opt.leaf_size, 1u, kMaxLeafSize);
+    box_depth_ = opt.box_depth;
+    threads_ = resolve_threads(opt.threads);
+    const uint32_t leaf = leaf_;
+    const int threads = threads_;
+    for (int k = 0; k < 3; ++k) tree_.origin_[k] = origin[k];
 
-    // Local float positions with their input index: partitioning these 16-byte items in place
-    // keeps the build's memory access sequential.
-    struct Item {
-        Vec3 p;
-        uint32_t i;
-    };
-    std::vector<Item> items(n);
+    std::vector<Item> &items = items_;
+    items.resize(n);
     parallel_for(n, 1 << 16, threads, [&](size_t b, size_t e, int) {
         for (size_t i = b; i < e; ++i) {
-            const double *p = in.points + 3 * i;
+            const double *p = points + 3 * i;
             items[i] = {{float(p[0] - origin[0]), float(p[1] - origin[1]), float(p[2] - origin[2])},
                         uint32_t(i)};
         }
@@ -64,8 +74,11 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
     // the centres' box. The median (not the spatial midpoint) bounds the depth by
     // log2(n / leaf) + 1 whatever the distribution (duplicates, outliers), so traversal can use
     // a fixed-size stack.
-    std::vector<Range> ranges{{0u, uint32_t(n)}};
-    std::vector<uint32_t> first_child{0u};
+    std::vector<Range> &ranges = ranges_;
+    std::vector<uint32_t> &first_child = first_child_;
+    std::vector<uint32_t> &level_start_ = tree_.level_start_;
+    ranges = {{0u, uint32_t(n)}};
+    first_child = {0u};
     level_start_ = {0u};
     size_t lb = 0, le = 1;
     for (;;) {
@@ -108,7 +121,17 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
         le = next;
     }
     level_start_.push_back(uint32_t(le));
-    const size_t n_nodes = le;
+    tree_.build_seconds_ = seconds_since(t0);
+}
+
+void SurfelTreeBuild::add_surfels(const float *normals, const float *radii, const float *colors) {
+    check_stage(2);
+    auto t0 = std::chrono::steady_clock::now();
+    const size_t n = n_;
+    const int threads = threads_;
+    std::vector<Surfel> &surfels_ = tree_.surfels_;
+    std::vector<uint32_t> &order_ = tree_.order_;
+    const std::vector<Item> &items = items_;
 
     // Surfels in leaf order.
     surfels_.resize(n);
@@ -117,16 +140,31 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
         for (size_t k = b; k < e; ++k) {
             uint32_t i = items[k].i;
             order_[k] = i;
-            const float *nn = in.normals + 3 * i;
+            const float *nn = normals + 3 * i;
             Surfel &s = surfels_[k];
             s.p = items[k].p;
-            s.r = in.radii[i];
+            s.r = radii[i];
             s.n = normalize(Vec3{nn[0], nn[1], nn[2]});
-            s.rgba = in.colors ? pack_rgb(in.colors[3 * i], in.colors[3 * i + 1], in.colors[3 * i + 2])
+            s.rgba = colors ? pack_rgb(colors[3 * i], colors[3 * i + 1], colors[3 * i + 2])
                                : 0xffffffffu;
         }
     });
-    std::vector<Item>().swap(items);
+    std::vector<Item>().swap(items_);
+    stage_ = 3;
+    tree_.build_seconds_ += seconds_since(t0);
+}
+
+SurfelTree SurfelTreeBuild::finish() {
+    check_stage(3);
+    auto t0 = std::chrono::steady_clock::now();
+    const uint32_t leaf = leaf_;
+    const int threads = threads_;
+    const std::vector<Range> &ranges = ranges_;
+    const std::vector<uint32_t> &first_child = first_child_;
+    const std::vector<uint32_t> &level_start_ = tree_.level_start_;
+    const std::vector<Surfel> &surfels_ = tree_.surfels_;
+    std::vector<Node> &nodes_ = tree_.nodes_;
+    const size_t n_nodes = level_start_.back();
 
     // Attributes, bottom-up.
     nodes_.resize(n_nodes);
@@ -214,11 +252,16 @@ SurfelTree::SurfelTree(const SurfelArrays &in, const double origin[3], const Bui
         });
     }
 
-    box_depth_ = std::min<uint32_t>(opt.box_depth, levels);
-    boxes.resize(level_start_[box_depth_]);
+    std::vector<Sums>().swap(sums);
+    std::vector<Range>().swap(ranges_);
+    std::vector<uint32_t>().swap(first_child_);
+    tree_.box_depth_ = std::min<uint32_t>(box_depth_, levels);
+    boxes.resize(level_start_[tree_.box_depth_]);
     boxes.shrink_to_fit();
-    boxes_ = std::move(boxes);
-    build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    tree_.boxes_ = std::move(boxes);
+    tree_.build_seconds_ += seconds_since(t0);
+    stage_ = 4;
+    return std::move(tree_);
 }
 
 size_t SurfelTree::memory_bytes() const {

@@ -778,6 +778,56 @@ void test_empty_and_oversized_builds_throw() {
     CHECK(threw_big, "a tree of 2^27 surfels did not throw length_error");
 }
 
+/// The staged build (inputs freed stage by stage) gives the one-call build's tree byte for byte,
+/// reads each input only in its own stage, and refuses stages out of order.
+void test_staged_build() {
+    std::mt19937_64 g(77);
+    const double zero[3] = {0, 0, 0};
+    Cloud cl = random_sphere_cloud(g, 3000, 1.0, zero);
+    const double origin[3] = {0.25, -0.5, 0.125};
+    BuildOptions bo{5, 4, 2};
+    SurfelArrays a{cl.p.data(), cl.n.data(), cl.r.data(), cl.c.data(), cl.size()};
+    SurfelTree one(a, origin, bo);
+    std::vector<double> points = cl.p;
+    SurfelTreeBuild build(points.data(), cl.size(), origin, bo);
+    CHECK(build.next_stage() == 2, "stage %d after the constructor", build.next_stage());
+    bool threw = false;
+    try {
+        (void)build.finish();
+    } catch (const std::logic_error &) {
+        threw = true;
+    }
+    CHECK(threw, "finish() before add_surfels() did not throw logic_error");
+    std::vector<double>().swap(points);  // positions are not read after stage 1 (ASan would see it)
+    std::vector<float> normals = cl.n, radii = cl.r, colors = cl.c;
+    build.add_surfels(normals.data(), radii.data(), colors.data());
+    std::vector<float>().swap(normals);
+    std::vector<float>().swap(radii);
+    std::vector<float>().swap(colors);
+    SurfelTree staged = build.finish();
+    CHECK(build.next_stage() == 4, "stage %d after finish()", build.next_stage());
+    CHECK(staged.surfels().size() == one.surfels().size() &&
+              std::memcmp(staged.surfels().data(), one.surfels().data(),
+                          one.surfels().size() * sizeof(Surfel)) == 0,
+          "staged surfels differ");
+    CHECK(staged.nodes().size() == one.nodes().size() &&
+              std::memcmp(staged.nodes().data(), one.nodes().data(), one.nodes().size() * sizeof(Node)) == 0,
+          "staged nodes differ");
+    CHECK(staged.boxes().size() == one.boxes().size() &&
+              std::memcmp(staged.boxes().data(), one.boxes().data(), one.boxes().size() * sizeof(Box)) == 0,
+          "staged boxes differ");
+    CHECK(staged.order() == one.order() && staged.level_start() == one.level_start() &&
+              staged.box_depth() == one.box_depth() && staged.memory_bytes() == one.memory_bytes(),
+          "staged order, levels or box depth differ");
+    threw = false;
+    try {
+        (void)build.finish();
+    } catch (const std::logic_error &) {
+        threw = true;
+    }
+    CHECK(threw, "a second finish() did not throw logic_error");
+}
+
 }  // namespace
 
 int main() {
@@ -793,6 +843,7 @@ int main() {
     test_lod_budget();
     test_render();
     test_empty_and_oversized_builds_throw();
+    test_staged_build();
     std::printf("core_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
 }
