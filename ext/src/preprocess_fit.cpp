@@ -54,33 +54,50 @@ bool solve_spd(double m[kMaxTerms][kMaxTerms], double *r, int t) {
     return true;
 }
 
-/// Weighted least squares of z on the first `t` terms of (1, u, v, u^2, uv, v^2).
-bool fit_terms(const std::vector<double> &u, const std::vector<double> &v,
-               const std::vector<double> &z, const std::vector<double> &w, int t, double *coef) {
+/// Feature rows (1, u, v, u^2, uv, v^2) of a neighbourhood's points and their heights z.
+struct FitRows {
+    double f[kMaxTerms];
+    double z;
+};
+
+/// Weighted least squares of z on the first `T` terms of the rows' features. Every product is
+/// formed as (w f_a) f_b, in the order of the points, as the plain triple loop would: the fit
+/// does not depend on how this loop is arranged. Points of weight 0 add exactly nothing.
+template <int T>
+bool fit_terms(const FitRows *rows, const double *w, uint32_t k, double *coef) {
     double m[kMaxTerms][kMaxTerms] = {};
     double r[kMaxTerms] = {};
-    for (size_t j = 0; j < u.size(); ++j) {
-        double f[kMaxTerms] = {1.0, u[j], v[j], u[j] * u[j], u[j] * v[j], v[j] * v[j]};
-        for (int a = 0; a < t; ++a) {
-            r[a] += w[j] * f[a] * z[j];
-            for (int b = 0; b <= a; ++b) m[a][b] += w[j] * f[a] * f[b];
+    for (uint32_t j = 0; j < k; ++j) {
+        if (w[j] == 0.0) continue;
+        const double *f = rows[j].f;
+        double wf[T];
+        for (int a = 0; a < T; ++a) wf[a] = w[j] * f[a];
+        for (int a = 0; a < T; ++a) {
+            r[a] += wf[a] * rows[j].z;
+            for (int b = 0; b <= a; ++b) m[a][b] += wf[a] * f[b];
         }
     }
-    for (int a = 0; a < t; ++a)
-        for (int b = a + 1; b < t; ++b) m[a][b] = m[b][a];
-    if (!solve_spd(m, r, t)) return false;
-    for (int a = 0; a < t; ++a) {
+    for (int a = 0; a < T; ++a)
+        for (int b = a + 1; b < T; ++b) m[a][b] = m[b][a];
+    if (!solve_spd(m, r, T)) return false;
+    for (int a = 0; a < T; ++a) {
         if (!std::isfinite(r[a])) return false;
         coef[a] = r[a];
     }
     return true;
 }
 
-double eval_terms(const double *c, int t, double u, double v) {
-    double f[kMaxTerms] = {1.0, u, v, u * u, u * v, v * v};
+bool fit_terms(const FitRows *rows, const double *w, uint32_t k, int t, double *coef) {
+    return t == kMaxTerms ? fit_terms<kMaxTerms>(rows, w, k, coef)
+                          : fit_terms<3>(rows, w, k, coef);
+}
+
+/// z minus the fit, summed term by term in order (as a dot product from 0).
+template <int T>
+double residual(const double *c, const FitRows &row) {
     double s = 0;
-    for (int a = 0; a < t; ++a) s += c[a] * f[a];
-    return s;
+    for (int a = 0; a < T; ++a) s += c[a] * row.f[a];
+    return row.z - s;
 }
 
 double dist2(const double *a, const double *b) {
@@ -88,10 +105,38 @@ double dist2(const double *a, const double *b) {
            (a[2] - b[2]) * (a[2] - b[2]);
 }
 
-/// Scratch space of one worker.
+/// Scratch space of one worker, grown to the largest neighbourhood it fits.
 struct FitScratch {
-    std::vector<double> u, v, z, ws, w;
+    std::vector<FitRows> rows;
+    std::vector<double> ws, w, res;
+    void reserve(uint32_t k) {
+        if (rows.size() >= k) return;
+        rows.resize(k), ws.resize(k), w.resize(k), res.resize(k);
+    }
 };
+
+/// The robust reweighting passes of a fit of `T` terms (coefficients `c`, updated in place).
+template <int T>
+void reweight(const FitRows *rows, const double *ws, double *w, double *res, uint32_t k,
+              const FitOptions &opt, double *c) {
+    for (int pass = 0; pass < opt.robust_passes; ++pass) {
+        double sr = 0, sw = 0;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = res[j] = residual<T>(c, rows[j]);
+            sr += w[j] * r * r;
+            sw += w[j];
+        }
+        double s2 = sr / sw * opt.robust_width * opt.robust_width;
+        if (!(s2 > 0)) break;
+        for (uint32_t j = 0; j < k; ++j) {
+            double r = res[j];
+            w[j] = ws[j] == 0.0 ? 0.0 : ws[j] * std::exp(-r * r / s2);
+        }
+        double prev[kMaxTerms];
+        std::copy(c, c + T, prev);
+        if (!fit_terms<T>(rows, w, k, c)) std::copy(prev, prev + T, c);
+    }
+}
 
 /// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
 /// writes the projected position and the fit's normal. False: the fit failed or asked for a
@@ -105,14 +150,18 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     double h = std::sqrt(h2);
     double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
     tangent_basis(nn, t1, t2);
-    std::vector<double> &u = s.u, &v = s.v, &z = s.z, &ws = s.ws, &w = s.w;
-    u.assign(k, 0.0), v.assign(k, 0.0), z.assign(k, 0.0), ws.assign(k, 1.0);
-    for (uint32_t m = 0; m + 1 < k; ++m) {  // entry 0 is the point itself
+    s.reserve(k);
+    FitRows *rows = s.rows.data();
+    double *ws = s.ws.data(), *w = s.w.data();
+    rows[0] = FitRows{{1.0, 0.0, 0.0, 0.0, 0.0, 0.0}, 0.0};  // entry 0 is the point itself
+    ws[0] = 1.0;
+    for (uint32_t m = 0; m + 1 < k; ++m) {
         const double *q = points + 3 * size_t(row[m]);
         double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
-        u[m + 1] = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
-        v[m + 1] = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
-        z[m + 1] = (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h;
+        double u = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
+        double v = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
+        rows[m + 1] = FitRows{{1.0, u, v, u * u, u * v, v * v},
+                              (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h};
         double t = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
         // a neighbour facing the other way lies on the far side of a thin part (or is
         // misoriented): fitting it would pull the point into the part
@@ -120,27 +169,14 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
         bool same_side = qn[0] * nn[0] + qn[1] * nn[1] + qn[2] * nn[2] > kSameSideCos;
         ws[m + 1] = same_side ? t * t : 0.0;
     }
-    w = ws;
+    std::copy(ws, ws + k, w);
     int terms = quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;
     double c[kMaxTerms];
-    bool ok = fit_terms(u, v, z, w, terms, c);
-    if (!ok && terms == kMaxTerms) ok = fit_terms(u, v, z, w, terms = 3, c);
-    for (int pass = 0; ok && pass < opt.robust_passes; ++pass) {
-        double sr = 0, sw = 0;
-        for (uint32_t j = 0; j < k; ++j) {
-            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
-            sr += w[j] * r * r;
-            sw += w[j];
-        }
-        double s2 = sr / sw * opt.robust_width * opt.robust_width;
-        if (!(s2 > 0)) break;
-        for (uint32_t j = 0; j < k; ++j) {
-            double r = z[j] - eval_terms(c, terms, u[j], v[j]);
-            w[j] = ws[j] * std::exp(-r * r / s2);
-        }
-        double prev[kMaxTerms];
-        std::copy(c, c + terms, prev);
-        if (!fit_terms(u, v, z, w, terms, c)) std::copy(prev, prev + terms, c);
+    bool ok = fit_terms(rows, w, k, terms, c);
+    if (!ok && terms == kMaxTerms) ok = fit_terms(rows, w, k, terms = 3, c);
+    if (ok) {
+        if (terms == kMaxTerms) reweight<kMaxTerms>(rows, ws, w, s.res.data(), k, opt, c);
+        else reweight<3>(rows, ws, w, s.res.data(), k, opt, c);
     }
     // the fit at the point's own tangential position: height a, slopes (b, c)
     if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) return false;
@@ -202,32 +238,32 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
-    for (size_t i = 0; i < n; ++i)
-        res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
-    check_cancel(progress);
     res.unmoved = n - size_t(std::count(moved.begin(), moved.end(), uint8_t(1)));
-    // spacing of each point within its own scan: its nearest neighbour from the same scan
+    // how far each point moved; its spacing within its own scan (its nearest neighbour from the
+    // same scan); how head-on its scanner saw it
     std::vector<double> &spacing = res.spacing;
-    spacing.assign(n, 0.0);
     std::vector<double> priority(n, 0.0);
-    for (size_t i = 0; i < n; ++i) {
-        const uint32_t *row = nb.row(i);
-        uint32_t j = row[0];
-        for (uint32_t m = 0; m < nb.k; ++m)
-            if (!group || group[row[m]] == group[i]) {
-                j = row[m];
-                break;
+    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
+            const uint32_t *row = nb.row(i);
+            uint32_t j = row[0];
+            for (uint32_t m = 0; m < nb.k; ++m)
+                if (!group || group[row[m]] == group[i]) {
+                    j = row[m];
+                    break;
+                }
+            spacing[i] = std::sqrt(dist2(points + 3 * size_t(j), points + 3 * i));
+            if (viewpoints) {
+                const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
+                const double *q = res.points.data() + 3 * i;
+                const float *nn = res.normals.data() + 3 * i;
+                double d[3] = {vp[0] - q[0], vp[1] - q[1], vp[2] - q[2]};
+                double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                priority[i] = l > 0 ? (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2]) / l : 0.0;
             }
-        spacing[i] = std::sqrt(dist2(points + 3 * size_t(j), points + 3 * i));
-        if (viewpoints) {
-            const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
-            const double *q = res.points.data() + 3 * i;
-            const float *nn = res.normals.data() + 3 * i;
-            double d[3] = {vp[0] - q[0], vp[1] - q[1], vp[2] - q[2]};
-            double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-            priority[i] = l > 0 ? (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2]) / l : 0.0;
         }
-    }
+    }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
     if (!(opt.thin > 0)) return res;
     // greedy thinning: the points seen most head-on first (then by index)

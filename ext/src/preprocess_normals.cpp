@@ -30,25 +30,34 @@ struct Fit {
 /// the smallest neighbourhoods with two or three).
 constexpr uint32_t kMinDistinct = 6;
 
-/// Weighted plane of point i and its first k - 1 neighbours.
-Fit fit_plane(const double *points, size_t i, const uint32_t *row, uint32_t k) {
+/// A neighbour's position relative to the point and its squared distance.
+struct Rel {
+    double x[3];
+    double d2;
+};
+
+/// Point i's first `m` neighbours relative to it (`out` holds m entries).
+void relative(const double *points, size_t i, const uint32_t *row, uint32_t m, Rel *out) {
     const double *p = points + 3 * i;
-    auto rel = [&](uint32_t j, double *x) {
-        const double *q = points + 3 * size_t(j);
-        x[0] = q[0] - p[0];
-        x[1] = q[1] - p[1];
-        x[2] = q[2] - p[2];
-    };
-    double far[3];
-    rel(row[k - 2], far);
-    double h2 = kWeightReach * kWeightReach * (far[0] * far[0] + far[1] * far[1] + far[2] * far[2]);
+    for (uint32_t j = 0; j < m; ++j) {
+        const double *q = points + 3 * size_t(row[j]);
+        Rel &r = out[j];
+        r.x[0] = q[0] - p[0];
+        r.x[1] = q[1] - p[1];
+        r.x[2] = q[2] - p[2];
+        r.d2 = r.x[0] * r.x[0] + r.x[1] * r.x[1] + r.x[2] * r.x[2];
+    }
+}
+
+/// Weighted plane of a point and its first k - 1 neighbours (`rel`, from relative()).
+Fit fit_plane(const Rel *rel, uint32_t k) {
+    double h2 = kWeightReach * kWeightReach * rel[k - 2].d2;
     double s0 = 1.0, s1[3] = {0, 0, 0}, s2[6] = {0, 0, 0, 0, 0, 0}, sw2 = 1.0;  // the point: w = 1
     uint32_t distinct = 1;
     double prev[3] = {0.0, 0.0, 0.0};
     for (uint32_t m = 0; m + 1 < k; ++m) {
-        double x[3];
-        rel(row[m], x);
-        double d2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
+        const double *x = rel[m].x;
+        double d2 = rel[m].d2;
         // rows are sorted by distance, then index: copies of one position are adjacent unless
         // another position lies at exactly the same distance (then this overcounts a little)
         distinct += x[0] != prev[0] || x[1] != prev[1] || x[2] != prev[2];
@@ -119,15 +128,22 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     std::vector<double> sigma2(n, 0.0);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        for (size_t i = b; i < e; ++i) sigma2[i] = fit_plane(points, i, nb.row(i), k0).sigma2;
+        std::vector<Rel> rel(k0);
+        for (size_t i = b; i < e; ++i) {
+            relative(points, i, nb.row(i), k0 - 1, rel.data());
+            sigma2[i] = fit_plane(rel.data(), k0).sigma2;
+        }
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
     // pass 2: grow each neighbourhood while its normal agrees with every smaller one's
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
         std::vector<double> local(k0);
+        std::vector<Rel> rel(cap);
         for (size_t i = b; i < e; ++i) {
             const uint32_t *row = nb.row(i);
+            // every size's neighbours, gathered once (each size reweights them)
+            relative(points, i, row, cap - 1, rel.data());
             // the noise level: the median residual variance around the point. One small
             // neighbourhood's own can be near 0 by chance (a few noisy samples may happen to lie
             // on a plane); the median over the first ring is not.
@@ -140,7 +156,7 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
             Fit accepted[16];
             int n_acc = 0;
             for (uint32_t k : sizes) {
-                Fit f = fit_plane(points, i, row, k);
+                Fit f = fit_plane(rel.data(), k);
                 if (!f.axes.ok) {
                     if (n_acc == 0) continue;  // a line at small scale may become a plane
                     break;
