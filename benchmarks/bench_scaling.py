@@ -13,9 +13,11 @@ machine. Times are wall clock (``--clock``); the process CPU time is recorded to
 samples a unit sphere (Fibonacci lattice, generated in chunks straight into the arrays a
 ``PointCloud`` keeps), frames it (``Camera.fit``), builds the ``full`` scene by wall clock from
 the cloud handed over (``SurfelScene(consume_cloud=True)``: each array is freed once the build
-has copied it) and traces 400x400 primary rays; its peak resident set
+has copied it), traces 400x400 primary rays, then renders a 640x480 frame of the scene with
+``pointviz.render`` (the defaults: "auto" look, ground, shadows on; 1 spp); its peak resident set
 (``VmHWM`` in /proc/self/status) over the surfel count is the whole process's bytes per surfel,
-Python arrays, build temporaries and interpreter included.
+Python arrays, build temporaries and interpreter included. The render's own peak is read after
+restarting VmHWM (``/proc/self/clear_refs``) just before it.
 
 Examples
 --------
@@ -120,6 +122,8 @@ def measure_size(model: pf.Model, args) -> dict:
 SAMPLE_CHUNK = 1 << 22
 #: Image of the whole-process runs (the paper's 400 x 400 primary rays).
 WHOLE_PROCESS_PIXELS = 400
+#: Frame of the whole-process runs' ``pointviz.render`` step (defaults, shadows on, 1 spp).
+RENDER_SIZE = (640, 480)
 
 
 def peak_rss_whole_process() -> int:
@@ -129,6 +133,17 @@ def peak_rss_whole_process() -> int:
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) * 1024
     raise RuntimeError("/proc/self/status has no VmHWM")
+
+
+def reset_peak_rss() -> bool:
+    """Restart VmHWM at the current resident set (Linux >= 4.0: ``clear_refs`` value 5), so the
+    peak read next is that of the steps run since; False where the kernel refuses."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
 
 
 def sphere_cloud_chunked(n: int):
@@ -169,6 +184,7 @@ def one_process(n: int, threads: int) -> dict:
     cloud = sphere_cloud_chunked(n)
     sample_s = time.perf_counter() - start
     cam = pointviz.Camera.fit(cloud, width=WHOLE_PROCESS_PIXELS, height=WHOLE_PROCESS_PIXELS)
+    render_cam = pointviz.Camera.fit(cloud, width=RENDER_SIZE[0], height=RENDER_SIZE[1])
     rays = np.asarray(cam.rays(), dtype=np.float32)
     start = time.perf_counter()
     scene = pointviz.SurfelScene(cloud, variant="full", threads=threads, consume_cloud=True)
@@ -181,10 +197,23 @@ def one_process(n: int, threads: int) -> dict:
         start = time.perf_counter()
         out = scene.cast_rays(rays, camera=cam, stats=False)
         best = min(best, time.perf_counter() - start)
-    peak = peak_rss_whole_process()
+    hit_fraction = float(np.isfinite(out["t_hit"]).mean())
+    after_cast = peak_rss_whole_process()
+    n_rays = len(rays)
+    del out, rays
+    gc.collect()
+    reset = reset_peak_rss()
+    start = time.perf_counter()
+    frame = pointviz.render(scene, render_cam, shadows=True, spp=1, threads=threads)
+    render_s = time.perf_counter() - start
+    render_peak = peak_rss_whole_process()
+    peak = max(render_peak, after_cast)
     return {"n": n, "threads": threads, "sample_s": sample_s, "build_s": build_s,
-            "mrays": len(rays) / best / 1e6,
-            "hit_fraction": float(np.isfinite(out["t_hit"]).mean()),
+            "mrays": n_rays / best / 1e6,
+            "hit_fraction": hit_fraction,
+            "render_s": render_s, "render_object_fraction": float(frame.object_alpha.mean()),
+            "peak_rss_cast_per_surfel": after_cast / n,
+            "peak_rss_render_per_surfel": render_peak / n if reset else None,
             "memory_bytes_per_surfel": scene.memory_bytes / n,
             "peak_rss_bytes": peak, "peak_rss_per_surfel": peak / n,
             "peak_rss_build_per_surfel": after_build / n, "interpreter_rss_bytes": base}
@@ -192,8 +221,8 @@ def one_process(n: int, threads: int) -> dict:
 
 def whole_process(sizes: list[int], threads_list: list[int], out: Path) -> int:
     """Run ``one_process`` in a fresh interpreter per size and thread count; print and save."""
-    print(f"{'surfels':>13}{'thr':>4}{'sample s':>9}{'build s':>9}{'Mr/s':>8}{'core B/s':>9}"
-          f"{'peak B/s':>9}{'peak GB':>8}")
+    print(f"{'surfels':>13}{'thr':>4}{'sample s':>9}{'build s':>9}{'Mr/s':>8}{'render s':>9}"
+          f"{'core B/s':>9}{'rndr B/s':>9}{'peak B/s':>9}{'peak GB':>8}")
     rows = []
     for n in sizes:
         for threads in threads_list:
@@ -204,8 +233,10 @@ def whole_process(sizes: list[int], threads_list: list[int], out: Path) -> int:
                 continue
             r = json.loads(proc.stdout.strip().splitlines()[-1])
             rows.append(r)
+            render_peak = r["peak_rss_render_per_surfel"] or float("nan")
             print(f"{n:>13,}{threads:>4}{r['sample_s']:>9.1f}{r['build_s']:>9.1f}{r['mrays']:>8.2f}"
-                  f"{r['memory_bytes_per_surfel']:>9.1f}{r['peak_rss_per_surfel']:>9.1f}"
+                  f"{r['render_s']:>9.1f}{r['memory_bytes_per_surfel']:>9.1f}{render_peak:>9.1f}"
+                  f"{r['peak_rss_per_surfel']:>9.1f}"
                   f"{r['peak_rss_bytes'] / 2**30:>8.2f}", flush=True)
             pf.write_json(out, "scaling_whole_process.json",
                           {"benchmark": "scaling (whole process)", "machine": pf.machine_info(),
@@ -225,6 +256,9 @@ def chart_whole_process(rows: list, out_dir: Path) -> Path:
         axes[0].plot(n, [r["build_s"] for r in sel], "-o", ms=3, label=f"build, {t} thr")
         axes[1].plot(n, [r["peak_rss_per_surfel"] for r in sel], "-o", ms=3,
                      label=f"whole process peak (VmHWM), {t} thr")
+        if all(r.get("peak_rss_render_per_surfel") for r in sel):
+            axes[1].plot(n, [r["peak_rss_render_per_surfel"] for r in sel], ":^", ms=3,
+                         label=f"peak during render(), {t} thr")
         axes[1].plot(n, [r["memory_bytes_per_surfel"] for r in sel], "--s", ms=3,
                      label="core (memory_bytes)")
         axes[2].plot(n, [r["mrays"] for r in sel], "-o", ms=3, label=f"{t} thr")

@@ -161,6 +161,14 @@ def _horizontal_axes(pts: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.nd
     return u, major, minor
 
 
+def fit_sample(points: np.ndarray) -> np.ndarray:
+    """The even subsample (a view: every ``len // FIT_SAMPLE``-th row) that :func:`shape_kind`
+    and :func:`fit_camera` look at; the array itself when it has at most FIT_SAMPLE rows.
+    Taking it again changes nothing, so a caller may take it before an elementwise transform
+    of the rows (a change of frame) to avoid transforming the whole cloud."""
+    return points[:: len(points) // FIT_SAMPLE] if len(points) > FIT_SAMPLE else points
+
+
 def shape_kind(points: Any, up: Any = DEFAULT_UP) -> str:
     """What a cloud looks like from its points: ``"terrain"`` or ``"object"``.
 
@@ -177,11 +185,10 @@ def shape_kind(points: Any, up: Any = DEFAULT_UP) -> str:
     -------
     str
     """
-    pts = np.asarray(points, dtype=np.float64)
+    pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
         return "object"
-    if len(pts) > FIT_SAMPLE:
-        pts = pts[:: len(pts) // FIT_SAMPLE]
+    pts = fit_sample(pts).astype(np.float64, copy=False)  # no whole-cloud float64 copy
     u, major, minor = _horizontal_axes(pts, check_vec3(up, "up"))
     q = (TERRAIN_QUANTILE, 1.0 - TERRAIN_QUANTILE)
     height = np.diff(np.quantile(pts @ u, q))[0]
@@ -308,8 +315,7 @@ def fit_camera(cls: type, cloud: Any, direction: Any, fov_deg: float, width: int
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < FIT_ROBUST_MIN_POINTS:
         outliers = 0.0
-    if len(pts) > FIT_SAMPLE:
-        pts = pts[:: len(pts) // FIT_SAMPLE]
+    pts = fit_sample(pts)
     if outliers > 0.0:
         lo = np.quantile(pts, outliers / 2, axis=0)
         hi = np.quantile(pts, 1.0 - outliers / 2, axis=0)

@@ -380,12 +380,15 @@ class SurfelScene:
         """``"terrain"`` or ``"object"`` (see :func:`pointviz.camera.shape_kind`, which picks the
         "auto" look), decided on first use per ``up`` and reused like :meth:`extent`."""
         from . import camera
+        from .framing import fit_sample
 
         def compute(key):
             if self.cloud is not None:
                 return camera.shape_kind(self.cloud.points, key)
-            # keep_cloud=False: the tree's own surfel centres, back in world coordinates
-            return camera.shape_kind(self._tree.surfel_view()[:, :3] + self.origin, key)
+            # keep_cloud=False: the tree's own surfel centres, back in world coordinates; only
+            # the rows shape_kind looks at (fit_sample), not a float64 copy of the whole cloud
+            return camera.shape_kind(fit_sample(self._tree.surfel_view())[:, :3] + self.origin,
+                                     key)
 
         return self._per_up("_shape_kinds", up, compute)
 

@@ -207,7 +207,8 @@ def test_embree_one_sided_discs(embree, mode):
 
 
 def test_bench_scaling_whole_process(tmp_path):
-    """One fresh process per size: the sphere it samples is traced and its peak RSS recorded."""
+    """One fresh process per size: the sphere it samples is traced and rendered, its peak RSS
+    recorded."""
     import bench_scaling
 
     n = 20_000
@@ -220,4 +221,9 @@ def test_bench_scaling_whole_process(tmp_path):
     assert 0.3 < r["hit_fraction"] < 0.9
     assert r["peak_rss_bytes"] >= r["interpreter_rss_bytes"] > 0
     assert r["memory_bytes_per_surfel"] < 64
+    # the render step: a 640x480 frame of the sphere on the default ground, its own peak no
+    # higher than the whole run's
+    assert 0.2 < r["render_object_fraction"] < 0.9 and r["render_s"] > 0
+    render_peak = r["peak_rss_render_per_surfel"]
+    assert render_peak is None or 0 < render_peak * n <= r["peak_rss_bytes"]
     assert (tmp_path / "scaling_whole_process.png").exists()

@@ -309,3 +309,36 @@ def test_save_creates_missing_folders_but_not_over_a_file(ball, tmp_path):
     with pytest.raises(InputError, match="not a folder"):
         frame.save(tmp_path / "file" / "x.png")
     assert (tmp_path / "file").read_text() == "keep"
+
+
+def test_cli_render_hands_the_cloud_over_to_the_build(tmp_path, rng):
+    """``pointviz render`` gives the loaded cloud to its tree's build (consume_cloud=True): the
+    tree is the one a kept cloud builds, bit for bit, and the frame the same to float32 rounding
+    of the bounds and ground (which come from the tree's surfels)."""
+    from pointviz.cli import build_parser, main
+    from pointviz.commands.common import make_scene_and_camera
+
+    n = 4000
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    path = tmp_path / "ball.xyzn"
+    np.savetxt(path, np.hstack([p * 2.0 + [3.0, 1.0, -2.0], p]), fmt="%.9f")
+    argv = ["render", str(path), "-o", str(tmp_path / "f.png"), "--width", "64", "--height",
+            "48", "--spp", "1", "--no-denoise"]
+    args = build_parser().parse_args(argv)
+    kept, cam_kept = make_scene_and_camera(args)
+    given, cam_given = make_scene_and_camera(args, hand_over=True)
+    assert cam_given.eye == pytest.approx(cam_kept.eye) and cam_given.width == 64
+    tree = given.geometry(0)
+    assert isinstance(tree, pointviz.SurfelScene) and tree.cloud is None
+    np.testing.assert_array_equal(tree.tree.surfel_view(), kept.geometry(0).tree.surfel_view())
+    assert tree.trace_options().cull == kept.geometry(0).trace_options().cull
+    assert given.look == kept.look and given.ground == kept.ground
+    np.testing.assert_allclose(given.up, kept.up)
+    for a, b in zip(given.bounds(), kept.bounds()):
+        np.testing.assert_allclose(a, b, atol=1e-6)
+    a = pointviz.render(given, cam_given, spp=1, denoise=False)
+    b = pointviz.render(kept, cam_kept, spp=1, denoise=False)
+    np.testing.assert_array_equal(a.alpha, b.alpha)
+    assert np.abs(a.color - b.color).max() < 1e-3
+    assert main(argv) == 0 and (tmp_path / "f.png").exists()

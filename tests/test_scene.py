@@ -287,3 +287,57 @@ def test_an_unpickled_surfel_object_keeps_its_options_through_replace(rng):
     assert again.geometry(1).interpolation == "paper"
     assert again.geometry(1).settings["leaf_size"] == 5
     assert again.geometry(0).interpolation != "paper"
+
+
+def test_blocked_quantile_is_numpy_quantile(rng):
+    """The blocked quantile keeps only the extreme values and interpolates like numpy: the same
+    number (bit for bit, same dtype) as np.quantile over the whole array, ties included."""
+    for trial in range(600):
+        n = int(rng.integers(1, 3000))
+        x = (rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3)).astype(
+            (np.float32, np.float64)[trial % 2])
+        if trial % 5 == 0:
+            x = np.round(x)
+        q = float((0.0, GROUND_OUTLIER_FRACTION, 0.01, 0.5, 0.99, 1.0, rng.uniform())[trial % 7])
+        size = int(rng.integers(1, 400))
+        got = extent_mod.blocked_quantile((x[b:b + size] for b in range(0, n, size)), n, q)
+        want = np.quantile(x, q)
+        assert got == want and got.dtype == want.dtype, (n, x.dtype, q, size)
+
+
+@pytest.mark.parametrize("block", [1, 37, 4096, 1 << 18])
+def test_cloud_extent_in_blocks_is_the_whole_array_formula(blob, rng, monkeypatch, block):
+    """Whatever the block size, bounds and ground level equal the whole-array formula's exactly
+    (for the cloud's float64 points and for the tree's float32 view)."""
+    monkeypatch.setattr(extent_mod, "EXTENT_BLOCK", block)
+    up = rng.normal(size=3)
+    up /= np.linalg.norm(up)
+    view = pointviz.SurfelScene(blob).tree.surfel_view()
+    for points, radii in ((blob.points, blob.radii), (view[:, :3], view[:, 3])):
+        lo, hi, level = cloud_extent(points, radii, up)
+        r = float(np.max(radii))
+        h = points[:, 0] * up[0] + points[:, 1] * up[1] + points[:, 2] * up[2]
+        want = float(np.quantile(h, GROUND_OUTLIER_FRACTION)) - float(np.quantile(radii, 0.99))
+        np.testing.assert_array_equal(lo, points.min(axis=0).astype(np.float64) - r)
+        np.testing.assert_array_equal(hi, points.max(axis=0).astype(np.float64) + r)
+        assert level == want
+
+
+def test_shape_kind_of_a_scene_without_its_cloud_reads_only_the_sample(rng):
+    """keep_cloud=False decides the look from the tree's surfels: the same answer as the whole
+    view moved to world coordinates, for a flat tile and an object, without moving all of it."""
+    from pointviz.framing import FIT_SAMPLE, fit_sample, shape_kind
+
+    n = 2 * FIT_SAMPLE + 123
+    for scale, kind in (((50.0, 1.0, 40.0), "terrain"), ((1.0, 1.0, 1.0), "object")):
+        p = rng.uniform(-1, 1, (n, 3)) * scale + [1e3, 20.0, -5e2]
+        cloud = PointCloud(p, np.tile(np.float32([0, 1, 0]), (n, 1)), radii=np.full(n, 0.01))
+        ss = pointviz.SurfelScene(cloud, keep_cloud=False)
+        view = ss.tree.surfel_view()
+        assert shape_kind(view[:, :3] + ss.origin, (0.0, 1.0, 0.0)) == kind
+        assert ss.shape_kind((0.0, 1.0, 0.0)) == kind
+        sample = fit_sample(view)
+        assert len(sample) < 2 * FIT_SAMPLE
+        np.testing.assert_array_equal(fit_sample(sample), sample)  # taking it again: the same
+        np.testing.assert_array_equal(fit_sample(view[:, :3] + ss.origin),
+                                      sample[:, :3] + ss.origin)

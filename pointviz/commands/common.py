@@ -108,10 +108,11 @@ def parse_lights(specs):
     return lights
 
 
-def make_scene_and_camera(args, prepare: bool = True):
+def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     """Scene and camera from the common options; with ``prepare``, normals, radii and trees are
     made now (:func:`prepare_scene`), else on first use (the viewer: on its worker thread, after
-    the window is up)."""
+    the window is up). With ``hand_over`` (and ``prepare``) a loaded cloud is handed over to its
+    tree's build (:func:`handed_over_scene`), for a caller that needs nothing but the scene."""
     from .. import rendering  # noqa: F401 - the core and numpy, before the first stage
     from ..camera import Camera
     from ..scene import Scene
@@ -123,6 +124,7 @@ def make_scene_and_camera(args, prepare: bool = True):
     kw = {}
     if args.interpolation:
         kw["interpolation"] = args.interpolation
+    consume = hand_over and prepare and callable(getattr(loaded, "hand_over", None))
     if isinstance(loaded, Scene):
         scene = loaded
         if lights is not None:
@@ -131,7 +133,7 @@ def make_scene_and_camera(args, prepare: bool = True):
             scene = scene.with_ground(args.ground)
         if args.look not in (None, "auto"):
             scene = scene.with_look(args.look)
-    else:
+    elif not consume:  # (else the scene is made from the tree, once the camera is fitted)
         scene = Scene([loaded], lights=lights, ground=args.ground or "auto",
                       look=args.look or "auto", **kw)
     if args.camera:
@@ -149,8 +151,30 @@ def make_scene_and_camera(args, prepare: bool = True):
         camera = camera.with_size(w, h)
     if prepare:
         RenderSettings(**render_kwargs(args))  # bad options fail before the trees
-        prepare_scene(scene)
+        if consume:
+            scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto",
+                                      kw)
+        else:
+            prepare_scene(scene)
     return scene, camera
+
+
+def handed_over_scene(cloud, lights, ground, look, options: dict):
+    """The scene of one cloud whose arrays go to its tree's build
+    (``SurfelScene(consume_cloud=True)``: each is freed once copied), so that a large file
+    costs the tree and not the cloud beside it at the peak. The cloud cannot be used
+    afterwards. The tree has the options :class:`~pointviz.scene.Scene` gives its own (two
+    sided: no cone culling); bounds, ground and the "auto" look come from its float32 surfels.
+    Ends at the stages of :func:`prepare_scene`."""
+    from ..scene import Scene
+    from ..surfels import SurfelScene
+
+    _ = cloud.normals, cloud.radii
+    stage("normals")
+    up = getattr(cloud, "up", None)  # read before the hand-over
+    tree = SurfelScene(cloud, consume_cloud=True, **{"cull": False, **options})
+    stage("built")
+    return Scene([tree], lights=lights, ground=ground, look=look, up=up)
 
 
 def prepare_scene(scene) -> None:

@@ -24,7 +24,8 @@ def run(args) -> int:
     from ..rendering import render
 
     check_image_path(args.output, args.overwrite)  # fail before the expensive part
-    scene, camera = make_scene_and_camera(args)
+    # nothing needs the cloud once its tree is built: the build frees it as it copies it
+    scene, camera = make_scene_and_camera(args, hand_over=True)
     bar = ProgressBar("render", enabled=True if args.progress else None)
     frame = render(scene, camera, progress=bar, **render_kwargs(args))
     frame.save(args.output, bits=args.bits, exposure=args.exposure, overwrite=args.overwrite)
