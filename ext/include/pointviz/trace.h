@@ -55,18 +55,30 @@ struct TraceOptions {
 
 POINTVIZ_ISA_BEGIN
 
+/// Budget only: the error a pixel of `ray` may take above the floor, and the size rule's share.
+/// Secondary rays (they start with a width) skip the share: its nodes may tilt by anything, and
+/// one at the ray's origin would shadow the surface it leaves. The budget's own nodes deviate
+/// from their plane by under 1 % of their size.
+inline float ray_budget(const Ray &ray, const TraceOptions &opt) {
+    const bool secondary = ray.width0 > 0.f;
+    return (opt.max_error - kBudgetFloor) * (secondary ? 1.f : opt.budget_scale);
+}
+inline float ray_size_share(const Ray &ray, const TraceOptions &opt) {
+    return ray.width0 > 0.f ? 0.f : opt.lod_pixels;
+}
+
+/// The per-ray gate of lod_stop (lod.h, LodGate): under the budget, the nodes whose colour or
+/// cone rule them out at any footprint; otherwise only nodes without a cone.
+inline LodGate lod_gate(const Ray &ray, const TraceOptions &opt) {
+    if (opt.lod_criterion != LodCriterion::Budget) return LodGate{};
+    return budget_gate(ray_budget(ray, opt), ray_size_share(ray, opt));
+}
+
 /// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
 inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOptions &opt) {
     const float size = 2.f * nd.radius;
-    if (opt.lod_criterion == LodCriterion::Budget) {
-        // Secondary rays (they start with a width) skip the size rule's share: its nodes may
-        // tilt by anything, and one at the ray's origin would shadow the surface it leaves. The
-        // budget's own nodes deviate from their plane by under 1 % of their size.
-        const bool secondary = ray.width0 > 0.f;
-        return budget_allows(nd, ray.footprint(t2),
-                             (opt.max_error - kBudgetFloor) * (secondary ? 1.f : opt.budget_scale),
-                             secondary ? 0.f : opt.lod_pixels);
-    }
+    if (opt.lod_criterion == LodCriterion::Budget)
+        return budget_allows(nd, ray.footprint(t2), ray_budget(ray, opt), ray_size_share(ray, opt));
     const float fp = opt.lod_pixels * ray.footprint(t2);
     if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
     // A node's disk stands in for a curved patch badly in proportion to its normal spread;
@@ -213,6 +225,7 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     // still takes LoD: what matters is the beam's width where the node is.
     const bool lod = opt.lod && (ray.spread > 0.f || ray.width0 > 0.f);
     const uint32_t box_depth = opt.box_depth;
+    const LodGate gate = lod ? lod_gate(ray, opt) : LodGate{};
 
     StackEntry stack[kStackSize];
     int sp = 0;
@@ -262,11 +275,16 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
             }
         } else {
             const uint32_t c0 = nd.index();
-            float t2 = lod ? dot(nd.c - ray.o, ray.d) : 0.f;
             // A node whose normals span more than a hemisphere (two sheets of a thin part, a
             // closed piece) has no meaningful mean plane: its disk would face anywhere, so LoD
-            // descends until the children face one way.
-            if (lod && nd.has_cone() && t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
+            // descends until the children face one way (the gate lets no such node through).
+            // The gate first: most nodes fail it, and then need no footprint.
+            bool stop = false;
+            if (lod && gate.passes(nd)) {
+                const float t2 = dot(nd.c - ray.o, ray.d);
+                stop = t2 > 0.f && lod_stop(nd, ray, t2, opt);
+            }
+            if (stop) {
                 // Small enough: intersect the children as disks and let the policy blend them.
                 for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
                     const Node &cn = nodes[ch];
