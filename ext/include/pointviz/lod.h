@@ -74,11 +74,12 @@ inline int32_t largest_fitting(int32_t guess, int32_t hi, Fits fits) {
 }
 
 /// What a node must store for a ray to stop at it whatever the footprint it is seen with: an
-/// upper bound on its colour byte and one on its cone value. Set once per ray, it turns the
-/// footprint-independent part of the stopping rule into two integer compares on bytes the
-/// traversal has already loaded, so that nodes that can never stop (most of them, where the
-/// budget refuses curved or coloured detail) cost no footprint and no decoding. A necessary
-/// condition only: the nodes it lets through still face the whole rule (lod_stop).
+/// upper bound on its colour byte and one on its cone value. Found once per batch for each kind
+/// of ray (trace.h, lod_gates), it turns the footprint-independent part of the stopping rule
+/// into two integer compares on bytes the traversal has already loaded, so that nodes that can
+/// never stop (most of them, where the budget refuses curved or coloured detail) cost no
+/// footprint and no decoding. A necessary condition only: the nodes it lets through still face
+/// the whole rule (lod_stop).
 struct LodGate {
     int32_t colour_max = 255;             ///< largest colour byte that may stop (-1: none)
     int32_t cone_max = kConeNeverQ - 1;   ///< largest cone_q that may stop (never kConeNeverQ)
