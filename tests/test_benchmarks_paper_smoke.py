@@ -108,3 +108,13 @@ def test_bench_lod_quick_writes_rows_and_popping(shared_data, tmp_path):
     assert all(0.0 <= r["flip"] <= 1.0 and r["seconds"] > 0 for r in res["rows"])
     assert set(res["popping"]["torus"]) == {"full", "1px", "auto"}
     assert {p.name for p in tmp_path.glob("*.png")} == {"bench_lod.png"}
+
+
+def test_lod_refusals_quick_accounts_for_every_ancestor(shared_data, tmp_path):
+    res = run_script("lod_refusals.py", tmp_path, shared_data, "--models", "torus")
+    assert {r["factor"] for r in res["rows"]} == {1.0, 2.5, 7.5}
+    for r in res["rows"]:
+        assert set(r["ancestors"]) == {"no_cone", "colour", "spread", "stop"}
+        assert 0.0 <= r["share_may_stop"] <= r["share_in_cap"] <= 1.0
+        assert 1.0 <= r["budget_scale"] <= 16.0
+        assert all(0.0 <= v <= 1.0 for v in r["flip"].values())

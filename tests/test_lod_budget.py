@@ -74,6 +74,34 @@ def test_budget_bounds_the_measured_error(torus_scene, factor):
         assert _flip(full, one_px) > DEFAULT_MAX_ERROR
 
 
+def test_budget_that_stops_nothing_is_full_detail_exactly():
+    """A sphere of random colours: every node's colour term alone exceeds the default budget, so
+    no node may stop, even far away where the size share would stop them on a grey sphere; the
+    budget frame (shadows, reflections) then equals full detail bit for bit."""
+    rng = np.random.default_rng(11)
+    s = shapes.sphere(60_000, 1.0)
+    cloud = pointviz.PointCloud(np.asarray(s.points), normals=s.normals,
+                                colors=rng.uniform(0, 1, (60_000, 3)), name="confetti")
+    scene = pointviz.SurfelScene(cloud, variant="full")
+    na = scene.tree.node_arrays()
+    interior = na["count"] == 0
+    # the precondition, from the node table: the colour term (lod.h) exceeds E - floor everywhere
+    assert np.all(2.16 * 0.454 * na["colour_spread"][interior] > DEFAULT_MAX_ERROR - 0.0005)
+    kw = dict(spp=1, shadows=True, reflections=1, threads=2, seed=1)
+    for factor in (1.0, 7.5):
+        cam = far_camera(cloud, factor)
+        full = pointviz.render(scene, cam, lod_pixels=0, **kw)
+        auto = pointviz.render(scene, cam, lod_pixels="auto", **kw)
+        for key in ("color", "depth", "normal", "alpha"):
+            np.testing.assert_array_equal(getattr(auto, key), getattr(full, key))
+        # the grey sphere at the same views does stop (what the test would miss if it did not)
+        if factor == 7.5:
+            grey = pointviz.SurfelScene(pointviz.PointCloud(np.asarray(s.points), normals=s.normals,
+                                                            name="grey"), variant="full")
+            rays = np.ascontiguousarray(cam.rays(), dtype=np.float64)
+            assert np.any(grey.cast_rays(rays, camera=cam, lod_pixels="auto")["index"] == -2)
+
+
 def test_budget_takes_level_of_detail_where_it_can():
     """A flat uniformly coloured plane seen from afar: the budget stops at nodes (LoD disks show
     in the hit indices) and the hits stay on the plane; a curved striped torus at the same

@@ -91,6 +91,7 @@ template <class T>
 void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
+    const LodGates gates = lod_gates(opt);
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
         for (size_t i = b; i < e; ++i) {
@@ -105,7 +106,7 @@ void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOpti
                 local.first_invalid = std::min(local.first_invalid, i);
             } else {
                 ray.spread = pixel_angle;
-                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, h, st); });
+                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, gates, h, st); });
             }
             local.hits += hit;
             write_hit(out, i, hit, h, len, rd, tree);
@@ -120,6 +121,7 @@ void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, s
               const TraceOptions &opt, float t_min, float pixel_angle, int threads, uint8_t *hit,
               bool count, BatchStats &stats) {
     std::mutex m;
+    const LodGates gates = lod_gates(opt);
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
         for (size_t i = b; i < e; ++i) {
@@ -134,7 +136,7 @@ void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, s
             ray.tmin = float(double(t_min) * len);
             ray.tmax = float(double(t_max[i]) * len);
             ray.spread = pixel_angle;
-            bool h = counted(count, local, [&](auto &st) { return any_hit(tree, ray, opt, false, st); });
+            bool h = counted(count, local, [&](auto &st) { return any_hit(tree, ray, opt, gates, false, st); });
             hit[i] = h;
             local.hits += h;
         }
@@ -146,22 +148,24 @@ void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, s
 /// Closest hits of local rays shifted by `offset` (the renderer's batches).
 void intersect_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
                      const TraceOptions &opt, SurfaceHit *hits) {
+    const LodGates gates = lod_gates(opt);
     for (size_t i = 0; i < n; ++i) {
         Ray r = rays[i];
         r.o += offset;
         NoStats ns;
-        closest_hit(tree, r, opt, hits[i], ns);
+        closest_hit(tree, r, opt, gates, hits[i], ns);
     }
 }
 
 /// Any hits of local rays shifted by `offset`, two-sided (shadow rays).
 void occlude_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
                    const TraceOptions &opt, uint8_t *hit) {
+    const LodGates gates = lod_gates(opt);
     for (size_t i = 0; i < n; ++i) {
         Ray r = rays[i];
         r.o += offset;
         NoStats ns;
-        hit[i] = any_hit(tree, r, opt, false, ns);
+        hit[i] = any_hit(tree, r, opt, gates, false, ns);
     }
 }
 

@@ -586,6 +586,38 @@ void test_lod_budget() {
     striped.radius = radius_with_byte(1.f, 60);
     CHECK(!budget_allows(striped, 10.f, 0.005f - kBudgetFloor, 1.f), "colour-spread node stopped by the size share");
 
+    // The per-ray gate (LodGate) against budget_allows over every colour byte and a sweep of
+    // cone values: a node it refuses is never allowed at any footprint (it is a necessary
+    // condition), and its bounds are tight (the first value past each bound fails the term it
+    // stands for).
+    for (float e : {0.f, 0.002f, 0.005f, 0.01f, 0.08f, 1.f, 3.f}) {
+        for (float share : {0.f, 1.f}) {
+            const float budget = e - kBudgetFloor;
+            const LodGate gate = budget_gate(budget, share);
+            if (gate.colour_max < 255)
+                CHECK(colour_term(Node::decode_colour_spread(uint32_t(gate.colour_max + 1))) > budget,
+                      "E %g: colour bound %d not tight", e, gate.colour_max);
+            if (share == 0.f && gate.cone_max < int32_t(kConeNeverQ) - 1)
+                CHECK(spread_term(Node::decode_cone(uint32_t(gate.cone_max + 1))) > budget,
+                      "E %g: cone bound %d not tight", e, gate.cone_max);
+            for (uint32_t byte = 0; byte < 256; byte += 5) {
+                for (uint32_t cq = 0; cq <= kConeNeverQ; cq += (cq < 2000 ? 7 : 997)) {
+                    Node nd = flat;
+                    nd.radius = radius_with_byte(0.5f, byte);
+                    nd.cone_q = uint16_t(std::min<uint32_t>(cq, kConeNeverQ));
+                    if (!nd.has_cone() || gate.passes(nd)) continue;
+                    for (float fp : {0.01f, 1.f, 100.f})
+                        CHECK(!budget_allows(nd, fp, budget, share),
+                              "E %g share %g: gate refused byte %u cone %u that the budget allows", e,
+                              share, byte, cq);
+                }
+            }
+        }
+    }
+    Node wide = flat;
+    wide.cone_q = kConeNeverQ;
+    CHECK(!LodGate{}.passes(wide), "the open gate let a node without a cone through");
+
     // Rays through the budget traversal stay clean (finite, unit normals, in range); with
     // max_error 0 they equal full detail exactly.
     auto rays = random_rays(g, 400, zero, 5.0, 1.0);

@@ -3,6 +3,8 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 
 #include "pointviz/isa.h"
 #include "pointviz/node.h"
@@ -29,6 +31,13 @@ constexpr float kBudgetMaxExtent = 8.f;
 
 POINTVIZ_ISA_BEGIN
 
+/// The predictor's colour term for a colour spread, as budget_allows compares it.
+inline float colour_term(float colour_spread) {
+    return kBudgetScale * kColourWeight * colour_spread;
+}
+/// The predictor's normal-spread term for a cone's sine (2: no cone).
+inline float spread_term(float cone) { return kBudgetScale * kSpreadWeight * std::min(cone, 1.f); }
+
 /// Predicted error of stopping at `nd` (nodes without a cone never stop: caller's check).
 inline float predicted_error(const Node &nd) {
     return kBudgetScale * (kSpreadWeight * std::min(nd.cone(), 1.f) +
@@ -49,10 +58,57 @@ inline float predicted_error(const Node &nd) {
 inline bool budget_allows(const Node &nd, float fp, float budget, float size_pixels) {
     const float size = 2.f * nd.radius;
     if (!(size <= kBudgetMaxExtent * fp)) return false;
-    const float colour = kBudgetScale * kColourWeight * nd.colour_spread();
+    const float colour = colour_term(nd.colour_spread());
     if (colour > budget) return false;
-    return size <= size_pixels * fp ||
-           colour + kBudgetScale * kSpreadWeight * std::min(nd.cone(), 1.f) <= budget;
+    return size <= size_pixels * fp || colour + spread_term(nd.cone()) <= budget;
+}
+
+/// Largest q in [0, hi] with fits(q), fits non-increasing in q (true up to some q, false after);
+/// -1 when none. Starts from the estimate `guess`, so that it takes a step or two.
+template <class Fits>
+inline int32_t largest_fitting(int32_t guess, int32_t hi, Fits fits) {
+    int32_t q = std::clamp(guess, int32_t(-1), hi);
+    while (q >= 0 && !fits(q)) --q;
+    while (q < hi && fits(q + 1)) ++q;
+    return q;
+}
+
+/// What a node must store for a ray to stop at it whatever the footprint it is seen with: an
+/// upper bound on its colour byte and one on its cone value. Found once per batch for each kind
+/// of ray (trace.h, lod_gates), it turns the footprint-independent part of the stopping rule
+/// into two integer compares on bytes the traversal has already loaded, so that nodes that can
+/// never stop (most of them, where the budget refuses curved or coloured detail) cost no
+/// footprint and no decoding. A necessary condition only: the nodes it lets through still face
+/// the whole rule (lod_stop).
+struct LodGate {
+    int32_t colour_max = 255;             ///< largest colour byte that may stop (-1: none)
+    int32_t cone_max = kConeNeverQ - 1;   ///< largest cone_q that may stop (never kConeNeverQ)
+
+    bool passes(const Node &nd) const {
+        return int32_t(nd.colour_byte()) <= colour_max && int32_t(nd.cone_q) <= cone_max;
+    }
+};
+
+/// The gate of budget_allows for `budget` and `size_pixels`: the colour term alone must fit;
+/// without a size share (size_pixels 0), so must the spread term (the sum of the two
+/// non-negative terms is at least either).
+inline LodGate budget_gate(float budget, float size_pixels) {
+    LodGate g;
+    const auto colour_fits = [budget](int32_t q) {
+        return colour_term(Node::decode_colour_spread(uint32_t(q))) <= budget;
+    };
+    const float k = colour_term(Node::decode_colour_spread(255));
+    const float guess = budget > 0.f ? 255.f * std::sqrt(std::min(budget / k, 1.f)) : -1.f;
+    g.colour_max = largest_fitting(int32_t(guess), 255, colour_fits);
+    if (!(size_pixels > 0.f)) {
+        const auto cone_fits = [budget](int32_t q) {
+            return spread_term(Node::decode_cone(uint32_t(q))) <= budget;
+        };
+        const float s = spread_term(1.f);
+        const float cguess = budget > 0.f ? kConeScale * std::min(budget / s, 2.f) : -1.f;
+        g.cone_max = largest_fitting(int32_t(cguess), int32_t(kConeNeverQ) - 1, cone_fits);
+    }
+    return g;
 }
 
 POINTVIZ_ISA_END

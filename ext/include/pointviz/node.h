@@ -89,17 +89,25 @@ struct Node {
     /// Whether the cone is narrower than a hemisphere (culling can apply).
     bool has_cone() const { return cone_q != kConeNeverQ; }
     /// Sine of the cone's half-angle, slack included; 2 when it spans more than a hemisphere.
-    float cone() const { return has_cone() ? float(cone_q) * (1.f / kConeScale) : 2.f; }
+    float cone() const { return has_cone() ? decode_cone(cone_q) : 2.f; }
+    /// The sine a stored cone value below kConeNeverQ stands for (non-decreasing in it).
+    static float decode_cone(uint32_t q) { return float(q) * (1.f / kConeScale); }
     uint32_t index() const { return index_count & (kMaxTreeSurfels - 1); }
     uint32_t count() const { return index_count >> 27; }
     bool is_leaf() const { return count() != 0; }
     uint32_t rgba() const { return (rgb_slab & 0xffffffu) | 0xff000000u; }
     uint32_t slab_q() const { return rgb_slab >> 24; }
-    /// Upper bound of the RMS colour deviation of the subtree (0..1 per channel, RGB summed).
-    float colour_spread() const {
+    /// The stored colour-spread byte (the radius's 8 low mantissa bits).
+    uint32_t colour_byte() const {
         uint32_t bits;
         std::memcpy(&bits, &radius, 4);
-        const float q = float(bits & 0xffu) * (1.f / 255.f);
+        return bits & 0xffu;
+    }
+    /// Upper bound of the RMS colour deviation of the subtree (0..1 per channel, RGB summed).
+    float colour_spread() const { return decode_colour_spread(colour_byte()); }
+    /// The colour spread a stored byte stands for (non-decreasing in the byte).
+    static float decode_colour_spread(uint32_t byte) {
+        const float q = float(byte) * (1.f / 255.f);
         return q * q * kColourSpreadMax;
     }
     /// Half-width of the slab around the mean plane (along axis()).

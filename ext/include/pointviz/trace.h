@@ -55,17 +55,40 @@ struct TraceOptions {
 
 POINTVIZ_ISA_BEGIN
 
+/// Budget only: the error a pixel may take above the floor, and the size rule's share, for
+/// primary or secondary rays (secondary rays start with a width). Secondary rays skip the share:
+/// its nodes may tilt by anything, and one at the ray's origin would shadow the surface it
+/// leaves. The budget's own nodes deviate from their plane by under 1 % of their size.
+inline float ray_budget(bool secondary, const TraceOptions &opt) {
+    return (opt.max_error - kBudgetFloor) * (secondary ? 1.f : opt.budget_scale);
+}
+inline float ray_size_share(bool secondary, const TraceOptions &opt) {
+    return secondary ? 0.f : opt.lod_pixels;
+}
+
+/// The gates of lod_stop (lod.h, LodGate) for primary and secondary rays under one set of
+/// options, found once per batch: under the budget, the nodes whose colour or cone rule them out
+/// at any footprint; otherwise only nodes without a cone.
+struct LodGates {
+    LodGate primary, secondary;
+    const LodGate &of(const Ray &ray) const { return ray.width0 > 0.f ? secondary : primary; }
+};
+inline LodGates lod_gates(const TraceOptions &opt) {
+    LodGates g;
+    if (opt.lod_criterion == LodCriterion::Budget) {
+        g.primary = budget_gate(ray_budget(false, opt), ray_size_share(false, opt));
+        g.secondary = budget_gate(ray_budget(true, opt), ray_size_share(true, opt));
+    }
+    return g;
+}
+
 /// Whether `nd`, seen at ray parameter t2 along `ray`, is small enough to stop descending.
 inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOptions &opt) {
     const float size = 2.f * nd.radius;
     if (opt.lod_criterion == LodCriterion::Budget) {
-        // Secondary rays (they start with a width) skip the size rule's share: its nodes may
-        // tilt by anything, and one at the ray's origin would shadow the surface it leaves. The
-        // budget's own nodes deviate from their plane by under 1 % of their size.
         const bool secondary = ray.width0 > 0.f;
-        return budget_allows(nd, ray.footprint(t2),
-                             (opt.max_error - kBudgetFloor) * (secondary ? 1.f : opt.budget_scale),
-                             secondary ? 0.f : opt.lod_pixels);
+        return budget_allows(nd, ray.footprint(t2), ray_budget(secondary, opt),
+                             ray_size_share(secondary, opt));
     }
     const float fp = opt.lod_pixels * ray.footprint(t2);
     if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
@@ -203,8 +226,8 @@ inline float enter_bound(const SurfelTree &tree, uint32_t i, uint32_t depth, con
 /// subtrees whose normal cone faces away entirely; once a cone faces the ray entirely its
 /// subtree is not tested again.
 template <bool kSlabs, class Policy, class Stats>
-void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
-                   Policy &policy, Stats &stats) {
+void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                   const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
     using namespace detail;
     const auto &nodes = tree.nodes();
     const auto &surfels = tree.surfels();
@@ -213,6 +236,7 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     // still takes LoD: what matters is the beam's width where the node is.
     const bool lod = opt.lod && (ray.spread > 0.f || ray.width0 > 0.f);
     const uint32_t box_depth = opt.box_depth;
+    const LodGate gate = gates.of(ray);
 
     StackEntry stack[kStackSize];
     int sp = 0;
@@ -262,11 +286,16 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
             }
         } else {
             const uint32_t c0 = nd.index();
-            float t2 = lod ? dot(nd.c - ray.o, ray.d) : 0.f;
             // A node whose normals span more than a hemisphere (two sheets of a thin part, a
             // closed piece) has no meaningful mean plane: its disk would face anywhere, so LoD
-            // descends until the children face one way.
-            if (lod && nd.has_cone() && t2 > 0.f && lod_stop(nd, ray, t2, opt)) {
+            // descends until the children face one way (the gate lets no such node through).
+            // The gate first: most nodes fail it, and then need no footprint.
+            bool stop = false;
+            if (lod && gate.passes(nd)) {
+                const float t2 = dot(nd.c - ray.o, ray.d);
+                stop = t2 > 0.f && lod_stop(nd, ray, t2, opt);
+            }
+            if (stop) {
                 // Small enough: intersect the children as disks and let the policy blend them.
                 for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
                     const Node &cn = nodes[ch];
@@ -305,11 +334,12 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     }
 }
 
+/// `gates` must be lod_gates(opt) (batches find it once).
 template <class Policy, class Stats>
-void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
-              Policy &policy, Stats &stats) {
-    if (opt.slabs) traverse_impl<true>(tree, ray, opt, cull, policy, stats);
-    else traverse_impl<false>(tree, ray, opt, cull, policy, stats);
+void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+              const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
+    if (opt.slabs) traverse_impl<true>(tree, ray, opt, gates, cull, policy, stats);
+    else traverse_impl<false>(tree, ray, opt, gates, cull, policy, stats);
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.
@@ -330,9 +360,9 @@ inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, 
 /// within the depth window (paper section 2.1).
 template <class Stats>
 bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                 SurfaceHit &out, Stats &stats) {
+                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
     detail::Gather g(ray.tmax, opt.window);
-    traverse(tree, ray, opt, opt.cull, g, stats);
+    traverse(tree, ray, opt, gates, opt.cull, g, stats);
     out = SurfaceHit{};
     if (g.n == 0) return false;
     const detail::Candidate &best = g.c[0];
@@ -377,10 +407,10 @@ bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt
 
 /// Any hit in [ray.tmin, ray.tmax]: shadow rays. Two-sided unless `cull` is asked for.
 template <class Stats>
-bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt, bool cull,
-             Stats &stats) {
+bool any_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+             const LodGates &gates, bool cull, Stats &stats) {
     detail::AnyHit a(ray.tmax);
-    traverse(tree, ray, opt, cull, a, stats);
+    traverse(tree, ray, opt, gates, cull, a, stats);
     return a.hit;
 }
 
