@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
@@ -240,6 +241,56 @@ uint32_t KnnTree::query_near(const double q[3], uint32_t start, uint32_t k, uint
 
 void KnnTree::renumber_in_tree_order() { std::iota(ids_.begin(), ids_.end(), 0u); }
 
+std::vector<uint32_t> KnnTree::leaf_ranges() const {
+    std::vector<uint32_t> first{0, uint32_t(ids_.size())}, next;
+    for (uint32_t depth = 0; depth < depth_; ++depth) {
+        next.assign(1, 0);
+        for (size_t l = 0; l + 1 < first.size(); ++l) {
+            next.push_back(first[l] + (first[l + 1] - first[l]) / 2);
+            next.push_back(first[l + 1]);
+        }
+        first.swap(next);
+    }
+    return first;
+}
+
+void KnnTree::gather_leaves(uint32_t node, uint32_t depth, const double *b, double r2,
+                            std::vector<uint32_t> &leaves) const {
+    const double *c = &box_[6 * size_t(node)];
+    double d = 0;
+    for (int a = 0; a < 3; ++a) {
+        double e = std::max({c[a] - b[3 + a], b[a] - c[3 + a], 0.0});
+        d += e * e;
+    }
+    if (d > r2) return;
+    if (depth == depth_) {
+        leaves.push_back(node - ((1u << depth_) - 1));
+        return;
+    }
+    gather_leaves(2 * node + 1, depth + 1, b, r2, leaves);
+    gather_leaves(2 * node + 2, depth + 1, b, r2, leaves);
+}
+
+namespace {
+
+/// A candidate neighbour as one integer ordered as the tables are, by (squared distance,
+/// index): the bits of a non-negative double order as the double does.
+using Candidate = unsigned __int128;
+inline Candidate candidate(double d2, uint32_t id) {
+    uint64_t bits;
+    std::memcpy(&bits, &d2, sizeof bits);
+    return (Candidate(bits) << 32) | id;
+}
+inline uint32_t candidate_id(Candidate c) { return uint32_t(c); }
+inline double candidate_d2(Candidate c) {
+    uint64_t bits = uint64_t(c >> 32);
+    double d;
+    std::memcpy(&d, &bits, sizeof d);
+    return d;
+}
+
+}  // namespace
+
 NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
                        Progress *progress) {
     NeighbourTable t;
@@ -248,17 +299,81 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
     t.index.assign(t.n * t.k, 0);
     if (t.k == 0) return t;
     if (progress) progress->total.fetch_add(t.n, std::memory_order_relaxed);
-    const std::vector<uint32_t> &order = tree.order();
+    const std::vector<uint32_t> &ids = tree.ids_;
+    const std::vector<double> &pts = tree.pts_, &box = tree.box_;
+    const std::vector<uint32_t> first = tree.leaf_ranges();
+    const size_t leaves = first.size() - 1;
+    const uint32_t leaf0 = (1u << tree.depth_) - 1;
+    // The points of one leaf share their search: the leaves within a radius of the leaf's box
+    // are gathered once, and each point takes its k nearest among their points within that
+    // radius (or less). When at least k are that close, no point farther away can be among
+    // the k nearest (a point within the radius of q lies in a leaf whose box is within it of
+    // the leaf's box), so the row is exact; otherwise the point falls back to the tree's query.
+    // The leaf's radius is the largest k-th distance of the previous leaf, which lies next to
+    // it, with a margin; a point's own radius is at most the previous point's k-th distance
+    // plus their distance (the previous point and its neighbours are k + 1 points that close).
+    // The distances are computed branch-free and the few within the radius selected at the
+    // end: the per-candidate branches and insertions were most of the query's time.
+    // Squared margin on the previous leaf's radius (less falls back more often): CPU seconds
+    // of 31 neighbours of the dragon's 469k points / of a 500k-point sphere at 1.15 / 1.3 /
+    // 1.6: 0.76 / 0.79 / 0.84 and 0.78 / 0.82 / 0.87.
+    constexpr double kRadiusMargin = 1.15;
     // ~2 ms of queries per chunk at k = 32: the cancel flag is seen promptly
-    constexpr size_t kGrain = 2048;
-    parallel_for(t.n, kGrain, threads, [&](size_t b, size_t e, int) {
+    constexpr size_t kGrainLeaves = 2048 / KnnTree::kLeafSize;
+    parallel_for(leaves, kGrainLeaves, threads, [&](size_t lb, size_t le, int) {
         std::vector<double> d2(t.k);
-        for (size_t r = b; r < e; ++r) {
-            uint32_t i = order[r];
-            tree.query_near(points + 3 * size_t(i), uint32_t(r), t.k, i,
-                             t.index.data() + size_t(i) * t.k, d2.data());
+        std::vector<uint32_t> cand;
+        std::vector<Candidate> near;
+        double r2 = -1;  // no radius yet
+        const double *prev = nullptr;
+        double prev_kth = 0;
+        for (size_t l = lb; l < le; ++l) {
+            double kth = 0;
+            if (r2 >= 0) {
+                cand.clear();
+                tree.gather_leaves(0, 0, &box[6 * (leaf0 + l)], r2, cand);
+                size_t total = 0;
+                for (uint32_t c : cand) total += first[c + 1] - first[c];
+                if (near.size() < total) near.resize(total);
+            }
+            for (uint32_t r = first[l]; r < first[l + 1]; ++r) {
+                const double *q = &pts[3 * size_t(r)];
+                uint32_t self = ids[r];
+                uint32_t *row = t.index.data() + size_t(self) * t.k;
+                size_t cnt = 0;
+                double rq = r2;
+                if (prev) {
+                    double dx = prev[0] - q[0], dy = prev[1] - q[1], dz = prev[2] - q[2];
+                    double e = std::sqrt(prev_kth) + std::sqrt(dx * dx + dy * dy + dz * dz);
+                    rq = std::min(rq, e * e * (1 + 1e-9));
+                }
+                if (r2 >= 0)
+                    for (uint32_t c : cand) {
+                        const double *b = &box[6 * (leaf0 + size_t(c))];
+                        if (box_dist2(q, b) > rq) continue;
+                        for (uint32_t s = first[c]; s < first[c + 1]; ++s) {
+                            const double *p = &pts[3 * size_t(s)];
+                            double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+                            double d = dx * dx + dy * dy + dz * dz;
+                            near[cnt] = candidate(d, ids[s]);
+                            cnt += (d <= rq) & (ids[s] != self);
+                        }
+                    }
+                if (r2 >= 0 && cnt >= t.k) {
+                    std::nth_element(near.begin(), near.begin() + (t.k - 1), near.begin() + cnt);
+                    std::sort(near.begin(), near.begin() + (t.k - 1));
+                    for (uint32_t m = 0; m < t.k; ++m) row[m] = candidate_id(near[m]);
+                    prev_kth = candidate_d2(near[t.k - 1]);
+                } else {
+                    tree.query_near(points + 3 * size_t(self), r, t.k, self, row, d2.data());
+                    prev_kth = d2[t.k - 1];
+                }
+                kth = std::max(kth, prev_kth);
+                prev = q;
+            }
+            r2 = kth * kRadiusMargin;
         }
-        if (progress) progress->advance(e - b);
+        if (progress) progress->advance(first[le] - first[lb]);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
     return t;

@@ -15,6 +15,8 @@ namespace pointviz {
 /// Marks "no index" (e.g. no point to leave out of a query).
 constexpr uint32_t kNoIndex = 0xffffffffu;
 
+struct NeighbourTable;
+
 /// Static KD-tree over n points. Neighbours are ordered by (squared distance, index), so results
 /// do not depend on the tree's shape, the thread count or the order of the queries.
 class KnnTree {
@@ -46,6 +48,12 @@ public:
     void renumber_in_tree_order();
 
 private:
+    friend NeighbourTable knn_all(const KnnTree &, const double *, uint32_t, int, Progress *);
+    /// first[l], first[l + 1]: the stored positions of leaf l (leaves numbered left to right).
+    std::vector<uint32_t> leaf_ranges() const;
+    /// Appends the leaves whose box lies within squared distance r2 of the box `b` (lo, hi).
+    void gather_leaves(uint32_t node, uint32_t depth, const double *b, double r2,
+                       std::vector<uint32_t> &leaves) const;
     void build(struct KnnRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
                int spawn);
     void search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
