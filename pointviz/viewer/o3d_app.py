@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import collections
 import math
+import threading
 import time
 
 import numpy as np
@@ -91,6 +92,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.render_started = 0.0
         self.tick_times: list[float] = []  # ticks seen while a render runs (responsiveness)
         self.closed = False
+        self.closed_at = None                   # when the close handler finished (monotonic)
+        self.loop_ended = threading.Event()     # set once the GUI loop has returned
         self.path = None
         self.playing = None  # (t0 wall clock, path) while a path plays
         self._point_size = None
@@ -487,6 +490,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.timings["close_join_s"] = time.monotonic() - t0
         self.timings["worker_ended_on_close"] = ended
         self._write_report()
+        self.closed_at = time.monotonic()
         return True
 
     def _on_show_frame(self, checked) -> None:
@@ -618,9 +622,28 @@ def run(scene, settings, camera=None, title="pointviz", automation=None, t_start
     viewer = O3DViewer(scene, settings, camera, title, automation, t_start, window_size)
     if on_ready is not None:
         on_ready(viewer)
+    watchdog = threading.Thread(target=_quit_if_loop_outlives_window, args=(app, viewer),
+                                name="pointviz-close-watchdog", daemon=True)
+    watchdog.start()
     app.run()
+    viewer.loop_ended.set()
     viewer.worker.shutdown()
     return viewer
+
+
+#: How long Open3D's loop may keep running after the window has closed (its close handler has
+#: ended the workers and written every output), seconds, before it is asked to quit.
+CLOSE_GRACE_S = 10.0
+
+
+def _quit_if_loop_outlives_window(app, viewer) -> None:
+    """(watchdog thread) Once the window has closed, give Open3D's loop CLOSE_GRACE_S to return,
+    then ask it to quit. Under heavy load its loop was seen spinning on after its only window
+    had closed, so ``app.run()`` never returned."""
+    while not viewer.loop_ended.wait(0.5):
+        if viewer.closed_at is not None and time.monotonic() - viewer.closed_at > CLOSE_GRACE_S:
+            app.quit()
+            return
 
 
 __all__ = ["Automation", "O3DViewer", "grab_window", "run", "save_frame_npz"]
