@@ -7,7 +7,7 @@ they build, so this module does not depend on the camera's own."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -15,8 +15,10 @@ from .arrays import bounds as _bounds
 from .errors import InputError
 from .values import check_fov, check_image_size, check_real, check_vec3
 
-if TYPE_CHECKING:
-    from .camera import Camera
+#: The camera values this module makes and reads: :class:`pointviz.camera.Camera`, whose class
+#: ``fit_camera`` receives as an argument, so that framing never imports the camera module (the
+#: camera module depends on framing, not the other way round).
+CameraValue = Any
 
 #: Default up vector (+Y), used when neither the caller nor the cloud says.
 DEFAULT_UP = (0.0, 1.0, 0.0)
@@ -226,7 +228,7 @@ def _auto_directions(pts: np.ndarray, up: np.ndarray) -> list[np.ndarray]:
     return [-math.cos(elev) * horizontal - math.sin(elev) * u]
 
 
-def frame_coverage(camera: "Camera", points: np.ndarray) -> float:
+def frame_coverage(camera: CameraValue, points: np.ndarray) -> float:
     """Fraction of the image's COVERAGE_GRID cells that some projected point falls in: how much
     of the frame a dense cloud fills (a lower bound for a sparse one)."""
     px, depth = camera.project(points)
@@ -236,7 +238,8 @@ def frame_coverage(camera: "Camera", points: np.ndarray) -> float:
     return len(np.unique(cells[:, 1] * gx + cells[:, 0])) / (gx * gy)
 
 
-def _fill_frame(camera: "Camera", pts: np.ndarray, outliers: float, margin: float) -> "Camera":
+def _fill_frame(camera: CameraValue, pts: np.ndarray, outliers: float,
+                margin: float) -> CameraValue:
     """``camera`` moved along its view direction and sideways so that the points (all but
     ``outliers`` on each side) fill the image shrunk by ``margin``, centred.
 
