@@ -115,6 +115,7 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     tree's build (:func:`handed_over_scene`), for a caller that needs nothing but the scene."""
     from .. import rendering  # noqa: F401 - the core and numpy, before the first stage
     from ..camera import Camera
+    from ..cloud import PointCloud
     from ..scene import Scene
 
     stage("imported")
@@ -124,7 +125,7 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     kw = {}
     if args.interpolation:
         kw["interpolation"] = args.interpolation
-    consume = hand_over and prepare and callable(getattr(loaded, "hand_over", None))
+    consume = hand_over and prepare and isinstance(loaded, PointCloud)
     if isinstance(loaded, Scene):
         scene = loaded
         if lights is not None:
