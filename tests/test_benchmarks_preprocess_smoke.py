@@ -29,6 +29,8 @@ def test_bench_preprocess_quick_writes_every_section(shared_data, tmp_path):
         assert 0 < s["kept"] < r["points"]
         for m in (s, p):
             assert 0 <= m["interior_holes"] <= 1 and 0 <= m["holes"] <= 1
+            assert 0 <= m["outside"] <= 1
             assert m["normal_error_deg"] > 0 and m["depth_error"] > 0
+        assert set(r["offset"]) == {"raw_points", "surfels", "poisson_vertices"}
     dragon = res["dragon"]
     assert dragon["fit_report"]["points_kept"] < dragon["points"]
