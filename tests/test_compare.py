@@ -361,3 +361,29 @@ def test_a_coarse_reference_mesh_is_flagged_in_the_report(tmp_path):
     assert "Note on the reference" in page and "42 vertices for 3,000 input points" in page
     for e in doc["entries"]:
         assert e["times"]["render"] >= e["times"]["render_in_core"] > 0
+
+
+@needs_embreex
+@needs_flip
+@pytest.mark.slow
+def test_raw_scans_surfels_are_those_of_render_and_pay_their_own_normals(tmp_path):
+    """On registered raw scans the surfels are fitted as `pointviz render` fits them (from the
+    raw points, normals estimated by the fit), and their times hold the fit instead of the
+    shared normals, which are the meshes'."""
+    import pointviz
+    from pointviz.comparison.scans import virtual_scans
+
+    raw, _ = virtual_scans("torus", scans=4, resolution=40, noise=0.002, seed=3)
+    assert raw.is_raw_scan and len(raw) < Settings.quick().max_points
+    expected = pointviz.PointCloud(raw.points, viewpoints=raw.viewpoints,
+                                   scan_index=raw.scan_index).fitted()
+    doc = pointviz.compare(raw, out_dir=tmp_path, methods=["surfels-smooth", "poisson"],
+                           quick=True, log=lambda *_: None)
+    surfels = [e for e in doc["entries"] if e["method"] == "surfels-smooth"]
+    meshes = [e for e in doc["entries"] if e["method"] == "poisson"]
+    assert surfels and meshes
+    for e in surfels:
+        assert e["geometry"]["surfels"] == len(expected)
+        assert set(e["times"]["steps"]) == {"fit", "radii", "tree"}
+    for e in meshes:
+        assert "normals" in e["times"]["steps"]

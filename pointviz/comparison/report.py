@@ -303,7 +303,8 @@ figure img{{width:160px}} .note{{background:#f4f4f4;padding:.5em 1em}}</style></
 <p class="note">{doc['points']} points, {doc['image']['width']}×{doc['image']['height']} pixels,
 {doc['image']['spp']} samples per pixel. Reference: <b>{html.escape(ref['description'])}</b>.
 Every image is rendered by the same shading code (camera, lights, materials); only the geometry
-backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BVH) and rendering
+backend differs. Times: preprocessing (normals, radii, tree / reconstruction, BVH; for raw scans
+the surfels' surface fit, which estimates its own normals, instead of the normals) and rendering
 (the whole render call); first image = their sum, each stage in metrics.json.{load}
 <a href="metrics.json">metrics.json</a> (schema: <a href="metrics.schema.json">metrics.schema.json</a>).</p>
 {caveat}

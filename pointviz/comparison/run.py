@@ -89,17 +89,29 @@ def _subsample(cloud, n, seed):
 
 def shared_preprocess(cloud) -> dict:
     """Seconds of the preprocessing every method shares: normal estimation and orientation
-    (when the input has none) and disk radii (surfels only). Measured once per cloud, on first
-    call, and cached on the cloud, so a reference rendered from the same cloud does not hide it."""
+    (when the input has none) and disk radii (surfels only; not for registered raw scans, whose
+    surfels are fitted first and get the fitted points' radii, see :func:`run_methods`).
+    Measured once per cloud, on first call, and cached on the cloud, so a reference rendered
+    from the same cloud does not hide it."""
     cached = getattr(cloud, "_compare_preprocess", None)
     if cached is not None:
         return cached
     out = {}
+    raw = cloud.is_raw_scan
     if not cloud.has_normals:
         _, out["normals"] = _timed(lambda: cloud.normals)
-    _, out["radii"] = _timed(lambda: cloud.radii)
+    if not raw:
+        _, out["radii"] = _timed(lambda: cloud.radii)
     cloud._compare_preprocess = out
     return out
+
+
+def _without_estimates(cloud):
+    """The same points and per-point data as ``cloud`` without the normals and radii estimated
+    on it (the arrays are shared, nothing is copied or checked again)."""
+    return cloud._derive(cloud.points, None, False, None, False, cloud.colors,
+                         up=cloud.up, viewpoints=cloud.viewpoints, intensity=cloud.intensity,
+                         scan_index=cloud.scan_index)
 
 
 def run_methods(cloud, camera, settings: Settings, methods, reference_frame, diagonal,
@@ -111,7 +123,6 @@ def run_methods(cloud, camera, settings: Settings, methods, reference_frame, dia
     entries = []
     shared = shared_preprocess(cloud)
     steps0 = {k: v for k, v in shared.items() if k == "normals"}
-    t_radii = shared["radii"]
 
     def score(method, label, sett, steps, frame, wall, geom):
         # render: the whole render() call, as a user waits for it (the core's frame is part)
@@ -128,19 +139,26 @@ def run_methods(cloud, camera, settings: Settings, methods, reference_frame, dia
             f"normal {m['normal_error_deg']:5.1f} deg  holes {m['holes']:.3f}")
         entries.append(e)
 
-    surfels, surfel_steps = cloud, {"radii": t_radii}
+    surfels, surfel_steps = cloud, None
     for method in methods:
         if method in _INTERP:
-            if surfels is cloud and cloud.is_raw_scan:
-                # registered raw scans: the surfels a user gets (`pointviz render`'s default)
-                # are fitted across the scan layers; the fit and the fitted radii are theirs
-                surfels, t_fit = _timed(cloud.fitted)
+            if surfel_steps is None and cloud.is_raw_scan:
+                # registered raw scans: the surfels a user gets (`pointviz render`'s default),
+                # made as it makes them: from the raw points, the fit estimates each scan's
+                # normals and the neighbourhood size each point's normal chose, and fits over
+                # at least that many points. The fit (its normals included) and the fitted
+                # points' radii are the surfels' preprocessing; the shared normals are not
+                # theirs (the meshes' reconstructions need them, the surfels do not use them).
+                raw = _without_estimates(cloud)
+                surfels, t_fit = _timed(raw.fitted)
                 _, t_fit_radii = _timed(lambda: surfels.radii)
                 surfel_steps = {"fit": t_fit, "radii": t_fit_radii}
                 log(f"  surfels: {surfels.fit_report['summary']}")
+            elif surfel_steps is None:
+                surfel_steps = dict(steps0, radii=shared["radii"])
             ss, t_build = _timed(lambda: SurfelScene(surfels, interpolation=_INTERP[method]))
             for lod in settings.lods:
-                steps = dict(steps0, **surfel_steps, tree=t_build)
+                steps = dict(surfel_steps, tree=t_build)
                 frame, wall = _timed(lambda: render_geometry(ss, camera, settings, lod=lod))
                 score(method, f"{method} lod {lod:g} px", {"interpolation": _INTERP[method],
                       "lod_pixels": float(lod)}, steps, frame, wall, {"surfels": len(surfels)})
