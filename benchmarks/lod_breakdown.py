@@ -8,12 +8,13 @@ studio look over the default ground, one thread), each split into:
 * ``shadow``: shadow and sky-visibility rays against the objects and the ground;
 * ``shading``: the rest of a bounce (materials, lights, sampling the secondary rays);
 * ``tile``: a tile's camera rays and its output;
-* ``core other``: the core's wall time not in the phases (threads, buffers, the copy to numpy);
-* ``python``: ``render()``'s wall time outside the core (scene to core, exposure);
+* ``rest``: the rest of ``render()`` (Python: the scene to the core, the exposure; the core's
+  buffers and worker start);
 * ``tone map``: ``Frame.to_srgb8()`` (outside ``render()``; what a saved frame costs on top).
 
 Also the share of rays of each kind that met an object's bounds (and so were traced against its
-tree at all). Medians over ``--repeat`` interleaved repeats; wall clock (the phase timers are).
+tree at all). Medians over ``--repeat`` interleaved repeats of process CPU time (the phases: the
+tracer thread's CPU time; one thread by default).
 
 Examples
 --------
@@ -39,24 +40,24 @@ VARIANTS = (("full", {"lod_pixels": 0.0}), ("1px", {"lod_pixels": 1.0}),
             ("auto", {"lod_pixels": "auto", "max_error": bench_lod.DEFAULT_BUDGET}),
             ("coarsest", {"lod_pixels": bench_lod.COARSEST}))
 #: Parts of a frame, in the order printed.
-PARTS = ("primary", "reflection", "shadow", "shading", "tile", "core other", "python", "tone map")
+PARTS = ("primary", "reflection", "shadow", "shading", "tile", "rest", "tone map")
 
 
 def split(scene, cam, v: dict, threads: int) -> dict:
     """One frame's parts in seconds, and its ray counts."""
     import pointviz
 
-    t0 = time.perf_counter()
-    fr = pointviz.render(scene, cam, spp=1, shadows=True, reflections=1, threads=threads, **v)
-    total = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0 = time.process_time()
+    fr = pointviz.render(scene, cam, spp=1, shadows=True, reflections=1, threads=threads,
+                         phase_times=True, **v)
+    total = time.process_time() - t0
+    t0 = time.process_time()
     fr.to_srgb8()
-    tone = time.perf_counter() - t0
+    tone = time.process_time() - t0
     st = fr.stats
     ph = dict(st["phase_seconds"])
     out = {k: ph[k] for k in ("primary", "reflection", "shadow", "shading", "tile")}
-    out["core other"] = max(st["seconds"] - sum(out.values()), 0.0)
-    out["python"] = total - st["seconds"]
+    out["rest"] = total - sum(out.values())
     out["tone map"] = tone
     out["render"] = total
     rays = {k: (st[f"{k}_traced"], st[f"{k}_rays"]) for k in ("primary", "shadow", "reflection")}

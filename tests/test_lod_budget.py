@@ -62,13 +62,15 @@ def test_far_frame_traces_only_rays_that_can_reach_the_tree(torus_scene):
     traced than cast, but never fewer than the pixels that show it (its coverage counts
     samples that hit it), and the core's phase times add up within its wall time."""
     cam = far_camera(torus_scene.cloud, 7.5)
-    fr = pointviz.render(torus_scene, cam, spp=1, shadows=True, reflections=1, threads=1)
+    fr = pointviz.render(torus_scene, cam, spp=1, shadows=True, reflections=1, threads=1,
+                         phase_times=True)
     st = fr.stats
     assert int(np.count_nonzero(fr.object_alpha)) <= st["primary_traced"] < st["primary_rays"] / 4
     assert st["shadow_traced"] < st["shadow_rays"]
     phases = st["phase_seconds"]
     assert set(phases) == {"primary", "reflection", "shadow", "shading", "tile"}
-    assert all(v >= 0 for v in phases.values()) and sum(phases.values()) <= st["seconds"]
+    assert all(v >= 0 for v in phases.values()) and 0 < sum(phases.values()) <= st["seconds"]
+    assert "phase_seconds" not in pointviz.render(torus_scene, cam, spp=1, threads=1).stats
 
 
 @needs_flip

@@ -6,8 +6,8 @@
 #include "pointviz/render.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
+#include <ctime>
 
 #include "pointviz/parallel.h"
 
@@ -49,10 +49,12 @@ inline bool meets(const Reach &s, Vec3 o, Vec3 d, float tmin, float tmax) {
     return true;
 }
 
-/// Nanoseconds of the steady clock (the phase timers of RenderStats).
-inline uint64_t now_ns() {
-    return uint64_t(std::chrono::duration_cast<std::chrono::nanoseconds>(
-                        std::chrono::steady_clock::now().time_since_epoch()).count());
+/// CPU time of the calling thread in nanoseconds (RenderSettings::phase_times); 0 when off.
+inline uint64_t thread_ns(bool on) {
+    if (!on) return 0;
+    timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return uint64_t(ts.tv_sec) * 1000000000ull + uint64_t(ts.tv_nsec);
 }
 
 /// A counter-based random number: depends only on its key, never on thread scheduling.
@@ -167,7 +169,7 @@ public:
     }
 
     void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
-        uint64_t t0 = now_ns();
+        uint64_t t0 = thread_ns(set_.phase_times);
         const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
         const int spp = std::max(1, set_.spp);
         const bool jitter = (set_.sequence_spp ? set_.sequence_spp : uint32_t(spp)) > 1;
@@ -205,14 +207,14 @@ public:
                 }
             }
         stats_.primary += rays_.size();
-        stats_.ns.tile += now_ns() - t0;
+        stats_.ns.tile += thread_ns(set_.phase_times) - t0;
         for (int bounce = 0; !rays_.empty(); ++bounce) {
             trace_bounce(bounce, x0, y0, tw);
             if (bounce >= set_.reflections) break;
             rays_.swap(next_);
             stats_.reflection += rays_.size();
         }
-        t0 = now_ns();
+        t0 = thread_ns(set_.phase_times);
         for (int y = y0; y < y1; ++y)
             for (int x = x0; x < x1; ++x) {
                 size_t lp = size_t((y - y0) * tw + (x - x0));
@@ -226,7 +228,7 @@ public:
                 for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo_[lp][k]);
                 out.object_alpha[gp] = float(object_hits_[lp]) / float(spp);
             }
-        stats_.ns.tile += now_ns() - t0;
+        stats_.ns.tile += thread_ns(set_.phase_times) - t0;
     }
 
 private:
@@ -295,10 +297,10 @@ private:
     }
 
     void trace_bounce(int bounce, int x0, int y0, int tw) {
-        uint64_t t0 = now_ns();
+        uint64_t t0 = thread_ns(set_.phase_times);
         std::vector<Nearest> &near = near_;
         const uint64_t traced = intersect(near);
-        const uint64_t t1 = now_ns();
+        const uint64_t t1 = thread_ns(set_.phase_times);
         (bounce == 0 ? stats_.ns.primary : stats_.ns.reflection) += t1 - t0;
         (bounce == 0 ? stats_.primary_traced : stats_.reflection_traced) += traced;
         shadows_.clear();
@@ -454,10 +456,10 @@ private:
                 next_.push_back(nr);
             }
         }
-        t0 = now_ns();
+        t0 = thread_ns(set_.phase_times);
         stats_.ns.shading += t0 - t1;
         trace_shadows();
-        stats_.ns.shadow += now_ns() - t0;
+        stats_.ns.shadow += thread_ns(set_.phase_times) - t0;
     }
 
     void trace_shadows() {

@@ -116,6 +116,7 @@ struct RenderSettings {
     int threads = 0;
     int tile = 16;               ///< tile edge in pixels
     int occlusion_rays = 2;      ///< sky-visibility rays per camera sample (1 on reflections)
+    bool phase_times = false;    ///< fill RenderStats::ns (a clock read per phase and tile)
     OffsetPolicy offsets;
 };
 
@@ -133,8 +134,8 @@ struct FrameBuffers {
     std::vector<float> object_alpha;   ///< (h, w) fraction of samples that hit an object (not the ground)
 };
 
-/// Where a render's time went, summed over the workers (nanoseconds of steady clock, read
-/// once per batch: a few reads per tile). `primary` and `reflection`: closest-hit queries of
+/// Where a render's time went, summed over the workers: nanoseconds of each worker's CPU time,
+/// read a few times per tile when RenderSettings::phase_times asks for it (0 otherwise). `primary` and `reflection`: closest-hit queries of
 /// the objects and the ground; `shadow`: shadow and sky-visibility rays against the objects and
 /// the ground; `shading`: everything else a bounce does (materials, lights, sampling the
 /// secondary rays); `tile`: a tile's setup (camera rays) and output.
