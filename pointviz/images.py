@@ -142,12 +142,14 @@ def auto_exposure(color: np.ndarray, object_alpha: np.ndarray | None = None) -> 
     """
     # elementwise, not a matrix product: BLAS may sum in a thread-dependent order, and the
     # exposure must be the same in every process (distributed frames are byte-identical)
-    c = np.asarray(color, dtype=np.float64)
-    lum = 0.2126 * c[..., 0] + 0.7152 * c[..., 1] + 0.0722 * c[..., 2]
+    # the covered pixels first: a far object's frame converts only what it averages
+    c = np.asarray(color)
     if object_alpha is not None:
         mask = np.asarray(object_alpha) >= EXPOSURE_COVERAGE
         if mask.any():
-            lum = lum[mask]
+            c = c[mask]
+    c = c.astype(np.float64)
+    lum = 0.2126 * c[..., 0] + 0.7152 * c[..., 1] + 0.0722 * c[..., 2]
     lum = lum[np.isfinite(lum)]
     mean = float(lum.mean()) if lum.size else 0.0
     if not mean > 0:

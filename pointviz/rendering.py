@@ -179,7 +179,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
            ground=DEFAULTS.ground, look=DEFAULTS.look, denoise=DEFAULTS.denoise,
            background: bool = False, sample_offset: int = 0,
-           sequence_spp: int | None = None) -> Frame:
+           sequence_spp: int | None = None, phase_times: bool = False) -> Frame:
     """Ray trace a frame.
 
     Parameters
@@ -227,6 +227,12 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
         sequence of ``sequence_spp`` samples per pixel (default ``spp``). The mean of the frames
         with offsets 0, spp, 2 spp, ... (same seed) is the frame rendered with all those samples
         at once, up to float rounding.
+    phase_times : bool
+        Add ``stats["phase_seconds"]``: the tracer's CPU time (summed over its threads) in
+        closest-hit queries of camera rays (``primary``) and of reflection rays
+        (``reflection``), in shadow and sky-visibility rays (``shadow``), in the rest of each
+        bounce (``shading``) and in the tiles' setup and output (``tile``); each costs a few
+        clock reads per tile.
 
     Returns
     -------
@@ -273,6 +279,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     settings.sequence_spp = check_int(spp if sequence_spp is None else sequence_spp,
                                        "sequence_spp", 1, 2**31 - 1)
     settings.threads = threads or 0
+    settings.phase_times = bool(phase_times)
 
     is_cancelled = _cancel_check(cancel)
     first_tile = [False]
@@ -294,6 +301,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     if not first_tile[0]:  # a render that ended before the first poll still passes the stage
         stage("first_tile")
     stats = dict(stats)
+    if not phase_times:
+        del stats["phase_seconds"]
+    else:
+        stats["phase_seconds"] = dict(stats["phase_seconds"])
     total_rays = stats["primary_rays"] + stats["shadow_rays"] + stats["reflection_rays"]
     stats["rays_per_second"] = total_rays / max(stats["seconds"], 1e-9)
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)

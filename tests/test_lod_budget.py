@@ -57,6 +57,22 @@ def test_zero_budget_is_full_detail_exactly(torus_scene):
         np.testing.assert_array_equal(getattr(auto, key), getattr(full, key))
 
 
+def test_far_frame_traces_only_rays_that_can_reach_the_tree(torus_scene):
+    """At the far view most rays cannot reach the torus and skip its tree: fewer rays are
+    traced than cast, but never fewer than the pixels that show it (its coverage counts
+    samples that hit it), and the core's phase times add up within its wall time."""
+    cam = far_camera(torus_scene.cloud, 7.5)
+    fr = pointviz.render(torus_scene, cam, spp=1, shadows=True, reflections=1, threads=1,
+                         phase_times=True)
+    st = fr.stats
+    assert int(np.count_nonzero(fr.object_alpha)) <= st["primary_traced"] < st["primary_rays"] / 4
+    assert st["shadow_traced"] < st["shadow_rays"]
+    phases = st["phase_seconds"]
+    assert set(phases) == {"primary", "reflection", "shadow", "shading", "tile"}
+    assert all(v >= 0 for v in phases.values()) and 0 < sum(phases.values()) <= st["seconds"]
+    assert "phase_seconds" not in pointviz.render(torus_scene, cam, spp=1, threads=1).stats
+
+
 @needs_flip
 @pytest.mark.parametrize("factor", [1.0, 2.5, 7.5])
 def test_budget_bounds_the_measured_error(torus_scene, factor):

@@ -346,15 +346,26 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
     d["primary_rays"] = st.primary.load();
     d["shadow_rays"] = st.shadow.load();
     d["reflection_rays"] = st.reflection.load();
+    d["primary_traced"] = st.primary_traced.load();
+    d["shadow_traced"] = st.shadow_traced.load();
+    d["reflection_traced"] = st.reflection_traced.load();
+    nb::dict phases;   // CPU time summed over the workers (zeros unless phase_times)
+    phases["primary"] = 1e-9 * double(st.ns.primary.load());
+    phases["reflection"] = 1e-9 * double(st.ns.reflection.load());
+    phases["shadow"] = 1e-9 * double(st.ns.shadow.load());
+    phases["shading"] = 1e-9 * double(st.ns.shading.load());
+    phases["tile"] = 1e-9 * double(st.ns.tile.load());
+    d["phase_seconds"] = phases;
     d["tiles_done"] = st.tiles_done.load();
     d["tiles_total"] = st.tiles_total;
     size_t h = size_t(cam.height), w = size_t(cam.width);
     nb::dict bufs;
-    auto put = [&](const char *name, const std::vector<float> &src, size_t channels) {
-        float *dst;
-        auto arr = channels > 1 ? new_array<float>({h, w, channels}, &dst) : new_array<float>({h, w}, &dst);
-        std::copy(src.begin(), src.end(), dst);
-        bufs[name] = arr;
+    // the arrays take the buffers over (no copy: a frame's buffers are 48 bytes a pixel)
+    auto put = [&](const char *name, std::vector<float> &src, size_t channels) {
+        auto *owned = new std::vector<float>(std::move(src));
+        nb::capsule owner(owned, [](void *p) noexcept { delete static_cast<std::vector<float> *>(p); });
+        const size_t shape[3] = {h, w, channels};
+        bufs[name] = nb::ndarray<nb::numpy, float>(owned->data(), channels > 1 ? 3 : 2, shape, owner);
     };
     put("color", fb->color, 3);
     put("depth", fb->depth, 1);
@@ -564,6 +575,7 @@ NB_MODULE(_core, m) {
         .def_rw("threads", &RenderSettings::threads)
         .def_rw("tile", &RenderSettings::tile)
         .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)
+        .def_rw("phase_times", &RenderSettings::phase_times)
         .def_prop_rw("normal_offset", [](const RenderSettings &s) { return s.offsets.normal_offset; },
                      [](RenderSettings &s, float v) { s.offsets.normal_offset = v; })
         .def_prop_rw("offset_tmin", [](const RenderSettings &s) { return s.offsets.tmin; },

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <ctime>
 
 #include "pointviz/parallel.h"
 
@@ -20,6 +21,42 @@ constexpr double kR2a = 0.7548776662466927, kR2b = 0.5698402909980532;
 /// above float rounding where neither a disk radius nor a footprint is available.
 constexpr float kMinOffsetRel = 1e-5f;
 
+/// Margin on an object's bounds (relative to their radius) when deciding which rays can reach
+/// it: the queries test the same bounds in the tree's own frame, rounded differently.
+constexpr float kBoundsMargin = 1e-4f;
+
+/// A sphere around what a ray can hit in one object.
+struct Reach {
+    Vec3 c;
+    float r2 = 0.f;   ///< squared radius
+    bool known = false;   ///< false: unknown, every ray may hit
+};
+
+/// Whether the segment [tmin, tmax] of the ray o + t d (unit d) comes within the sphere: no
+/// division, no square root (rays that start inside it, a surface's shadow rays, pass at once).
+inline bool meets(const Reach &s, Vec3 o, Vec3 d, float tmin, float tmax) {
+    const Vec3 oc = s.c - o;
+    const float c2 = length2(oc);
+    if (c2 <= s.r2) return true;
+    const float tca = dot(oc, d);   // parameter of the point nearest to the centre
+    if (c2 - tca * tca > s.r2) return false;
+    // the ray meets the sphere around tca; the segment reaches it unless it ends before or
+    // starts after the sphere: compare squared distances of its ends from the nearest point
+    const float lo = tca - tmax, hi = tmin - tca;   // > 0: the segment ends before / starts after
+    const float h2 = s.r2 - (c2 - tca * tca);       // squared half-chord
+    if (lo > 0.f && lo * lo > h2) return false;
+    if (hi > 0.f && hi * hi > h2) return false;
+    return true;
+}
+
+/// CPU time of the calling thread in nanoseconds (RenderSettings::phase_times); 0 when off.
+inline uint64_t thread_ns(bool on) {
+    if (!on) return 0;
+    timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return uint64_t(ts.tv_sec) * 1000000000ull + uint64_t(ts.tv_nsec);
+}
+
 /// A counter-based random number: depends only on its key, never on thread scheduling.
 inline float rand01(uint64_t seed, uint64_t pixel, uint32_t sample, uint32_t dim) {
     uint64_t z = seed * 0x9E3779B97F4A7C15ull ^ (pixel * 0xBF58476D1CE4E5B9ull) ^
@@ -32,12 +69,16 @@ inline float rand01(uint64_t seed, uint64_t pixel, uint32_t sample, uint32_t dim
     return float(z >> 40) * (1.f / 16777216.f);
 }
 
+/// Fractional part of a non-negative x: the same value as std::fmod(x, 1.0) (both are exact:
+/// x - floor(x) subtracts an integer that shares x's exponent range), without a library call.
+inline double frac(double x) { return x - std::floor(x); }
+
 /// Point j of the R2 sequence, shifted per pixel and dimension pair (Cranley–Patterson): the
 /// samples of one pixel stay stratified over the square whatever their number.
 inline void r2_point(uint64_t seed, uint64_t pixel, uint32_t j, uint32_t dim, float &u1, float &u2) {
     float s1 = rand01(seed, pixel, 0, dim), s2 = rand01(seed, pixel, 0, dim + 1);
-    u1 = float(std::fmod(kR2a * double(j) + double(s1), 1.0));
-    u2 = float(std::fmod(kR2b * double(j) + double(s2), 1.0));
+    u1 = float(frac(kR2a * double(j) + double(s1)));
+    u2 = float(frac(kR2b * double(j) + double(s2)));
 }
 
 /// Random-number dimensions used by one bounce: lights take two each from kDimLights, the
@@ -114,9 +155,21 @@ class TileRenderer {
 public:
     TileRenderer(const RenderScene &s, const CameraModel &c, const RenderSettings &st,
                  float scale, RenderStats &stats)
-        : scene_(s), cam_(c), set_(st), min_offset_(kMinOffsetRel * scale), stats_(stats) {}
+        : scene_(s), cam_(c), set_(st), min_offset_(kMinOffsetRel * scale), stats_(stats) {
+        for (const auto &o : s.objects) {
+            Box b;
+            Reach reach;
+            if (o.geometry->bounds(b)) {   // the sphere around the box, grown by the margin
+                const float half = 0.5f * length(b.hi - b.lo);
+                const float r = half * (1.f + kBoundsMargin) + min_offset_;
+                reach = {(b.lo + b.hi) * 0.5f, r * r, true};
+            }
+            reach_.push_back(reach);
+        }
+    }
 
     void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
+        uint64_t t0 = thread_ns(set_.phase_times);
         const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
         const int spp = std::max(1, set_.spp);
         const bool jitter = (set_.sequence_spp ? set_.sequence_spp : uint32_t(spp)) > 1;
@@ -131,13 +184,17 @@ public:
         for (int y = y0; y < y1; ++y)
             for (int x = x0; x < x1; ++x) {
                 uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
-                float sx = rand01(set_.seed, gp, 0, 0), sy = rand01(set_.seed, gp, 0, 1);
+                float sx = 0.f, sy = 0.f;
+                if (jitter) {
+                    sx = rand01(set_.seed, gp, 0, 0);
+                    sy = rand01(set_.seed, gp, 0, 1);
+                }
                 for (int i = 0; i < spp; ++i) {
                     const uint32_t s = set_.sample_offset + uint32_t(i);
                     float u = 0.5f, v = 0.5f;
                     if (jitter) {   // R2 points, shifted per pixel (Cranley–Patterson)
-                        u = float(std::fmod(kR2a * s + sx, 1.0));
-                        v = float(std::fmod(kR2b * s + sy, 1.0));
+                        u = float(frac(kR2a * s + sx));
+                        v = float(frac(kR2b * s + sy));
                     }
                     PathRay pr;
                     pr.ray.o = cam_.eye;
@@ -150,12 +207,14 @@ public:
                 }
             }
         stats_.primary += rays_.size();
+        stats_.ns.tile += thread_ns(set_.phase_times) - t0;
         for (int bounce = 0; !rays_.empty(); ++bounce) {
             trace_bounce(bounce, x0, y0, tw);
             if (bounce >= set_.reflections) break;
             rays_.swap(next_);
             stats_.reflection += rays_.size();
         }
+        t0 = thread_ns(set_.phase_times);
         for (int y = y0; y < y1; ++y)
             for (int x = x0; x < x1; ++x) {
                 size_t lp = size_t((y - y0) * tw + (x - x0));
@@ -169,20 +228,36 @@ public:
                 for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo_[lp][k]);
                 out.object_alpha[gp] = float(object_hits_[lp]) / float(spp);
             }
+        stats_.ns.tile += thread_ns(set_.phase_times) - t0;
     }
 
 private:
-    void intersect(std::vector<Nearest> &near) {
+    /// Closest hits of rays_ with the objects (those of the rays that can reach each) and
+    /// the ground. Returns how many ray-object queries were made.
+    uint64_t intersect(std::vector<Nearest> &near) {
         const size_t n = rays_.size();
         near.assign(n, Nearest{SurfaceHit{}, -1});
-        batch_.resize(n);
-        for (size_t i = 0; i < n; ++i) batch_[i] = rays_[i].ray;
-        tmp_.resize(n);
+        uint64_t traced = 0;
         for (size_t o = 0; o < scene_.objects.size(); ++o) {
-            for (size_t i = 0; i < n; ++i) batch_[i].tmax = std::min(rays_[i].ray.tmax, near[i].hit.t);
-            scene_.objects[o].geometry->intersect(batch_.data(), n, tmp_.data());
-            for (size_t i = 0; i < n; ++i)
-                if (tmp_[i].t < near[i].hit.t) near[i] = {tmp_[i], int(o)};
+            const Reach &reach = reach_[o];
+            batch_.clear();
+            index_.clear();
+            for (size_t i = 0; i < n; ++i) {
+                Ray r = rays_[i].ray;
+                r.tmax = std::min(r.tmax, near[i].hit.t);
+                if (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax)) continue;
+                batch_.push_back(r);
+                index_.push_back(uint32_t(i));
+            }
+            const size_t m = batch_.size();
+            if (m == 0) continue;
+            traced += m;
+            tmp_.resize(m);
+            scene_.objects[o].geometry->intersect(batch_.data(), m, tmp_.data());
+            for (size_t k = 0; k < m; ++k) {
+                const uint32_t i = index_[k];
+                if (tmp_[k].t < near[i].hit.t) near[i] = {tmp_[k], int(o)};
+            }
         }
         if (scene_.ground) {
             for (size_t i = 0; i < n; ++i) {
@@ -201,6 +276,7 @@ private:
                 }
             }
         }
+        return traced;
     }
 
     Vec3 sky(Vec3 d) const {
@@ -221,8 +297,12 @@ private:
     }
 
     void trace_bounce(int bounce, int x0, int y0, int tw) {
-        std::vector<Nearest> near;
-        intersect(near);
+        uint64_t t0 = thread_ns(set_.phase_times);
+        std::vector<Nearest> &near = near_;
+        const uint64_t traced = intersect(near);
+        const uint64_t t1 = thread_ns(set_.phase_times);
+        (bounce == 0 ? stats_.ns.primary : stats_.ns.reflection) += t1 - t0;
+        (bounce == 0 ? stats_.primary_traced : stats_.reflection_traced) += traced;
         shadows_.clear();
         next_.clear();
         const Sky &sky_model = scene_.sky;
@@ -376,7 +456,10 @@ private:
                 next_.push_back(nr);
             }
         }
+        t0 = thread_ns(set_.phase_times);
+        stats_.ns.shading += t0 - t1;
         trace_shadows();
+        stats_.ns.shadow += thread_ns(set_.phase_times) - t0;
     }
 
     void trace_shadows() {
@@ -386,19 +469,30 @@ private:
         std::vector<uint8_t> blocked(n, 0), tmp;
         std::vector<uint32_t> live(n);
         for (size_t i = 0; i < n; ++i) live[i] = uint32_t(i);
-        for (const auto &obj : scene_.objects) {
+        uint64_t traced = 0;
+        for (size_t o = 0; o < scene_.objects.size(); ++o) {
             if (live.empty()) break;
-            batch_.resize(live.size());
-            for (size_t k = 0; k < live.size(); ++k) batch_[k] = shadows_[live[k]].ray;
-            tmp.assign(live.size(), 0);
-            obj.geometry->occluded(batch_.data(), live.size(), tmp.data());
-            size_t w = 0;
+            const Reach &reach = reach_[o];
+            batch_.clear();
+            index_.clear();   // positions in `live` of the rays that can reach the object
             for (size_t k = 0; k < live.size(); ++k) {
-                if (tmp[k]) blocked[live[k]] = 1;
-                else live[w++] = live[k];
+                const Ray &r = shadows_[live[k]].ray;
+                if (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax)) continue;
+                batch_.push_back(r);
+                index_.push_back(uint32_t(k));
             }
+            if (batch_.empty()) continue;
+            traced += batch_.size();
+            tmp.assign(batch_.size(), 0);
+            scene_.objects[o].geometry->occluded(batch_.data(), batch_.size(), tmp.data());
+            for (size_t k = 0; k < batch_.size(); ++k)
+                if (tmp[k]) blocked[live[index_[k]]] = 1;
+            size_t w = 0;
+            for (size_t k = 0; k < live.size(); ++k)
+                if (!blocked[live[k]]) live[w++] = live[k];
             live.resize(w);
         }
+        stats_.shadow_traced += traced;
         for (uint32_t i : live) {
             const ShadowRay &s = shadows_[i];
             if (scene_.ground && s.ground_blocks) {
@@ -428,7 +522,10 @@ private:
     std::vector<Vec3> albedo_;
     std::vector<PathRay> rays_, next_;
     std::vector<ShadowRay> shadows_;
+    std::vector<Reach> reach_;   ///< per object: the sphere around Geometry::bounds, grown by kBoundsMargin
+    std::vector<Nearest> near_;
     std::vector<Ray> batch_;
+    std::vector<uint32_t> index_;
     std::vector<SurfaceHit> tmp_;
 };
 

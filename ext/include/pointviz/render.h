@@ -116,6 +116,7 @@ struct RenderSettings {
     int threads = 0;
     int tile = 16;               ///< tile edge in pixels
     int occlusion_rays = 2;      ///< sky-visibility rays per camera sample (1 on reflections)
+    bool phase_times = false;    ///< fill RenderStats::ns (a clock read per phase and tile)
     OffsetPolicy offsets;
 };
 
@@ -133,11 +134,24 @@ struct FrameBuffers {
     std::vector<float> object_alpha;   ///< (h, w) fraction of samples that hit an object (not the ground)
 };
 
+/// Where a render's time went, summed over the workers: nanoseconds of each worker's CPU time,
+/// read a few times per tile when RenderSettings::phase_times asks for it (0 otherwise). `primary` and `reflection`: closest-hit queries of
+/// the objects and the ground; `shadow`: shadow and sky-visibility rays against the objects and
+/// the ground; `shading`: everything else a bounce does (materials, lights, sampling the
+/// secondary rays); `tile`: a tile's setup (camera rays) and output.
+struct PhaseTimes {
+    std::atomic<uint64_t> primary{0}, reflection{0}, shadow{0}, shading{0}, tile{0};
+};
+
 /// Counters of one render.
 struct RenderStats {
     std::atomic<uint64_t> primary{0}, shadow{0}, reflection{0};
+    /// Rays of each kind that met an object's bounds, and so were traced against it (the rest
+    /// cannot reach it and skip it).
+    std::atomic<uint64_t> primary_traced{0}, shadow_traced{0}, reflection_traced{0};
     std::atomic<uint64_t> tiles_done{0};
     uint64_t tiles_total = 0;
+    PhaseTimes ns;
 };
 
 /// What a frame shows: objects (geometry + material), an optional ground plane, lights, sky.
