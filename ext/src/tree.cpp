@@ -55,6 +55,7 @@ SurfelTreeBuild::SurfelTreeBuild(const double *points, size_t n, const double or
     n_ = n;
     leaf_ = std::clamp<uint32_t>(opt.leaf_size, 1u, kMaxLeafSize);
     box_depth_ = opt.box_depth;
+    wide_ = opt.wide;
     threads_ = resolve_threads(opt.threads);
     const uint32_t leaf = leaf_;
     const int threads = threads_;
@@ -259,6 +260,7 @@ SurfelTree SurfelTreeBuild::finish() {
     boxes.resize(level_start_[tree_.box_depth_]);
     boxes.shrink_to_fit();
     tree_.boxes_ = std::move(boxes);
+    if (wide_) tree_.wide_ = WideTree(nodes_, level_start_, tree_.box_depth_);
     tree_.build_seconds_ += seconds_since(t0);
     stage_ = 4;
     return std::move(tree_);
@@ -266,7 +268,7 @@ SurfelTree SurfelTreeBuild::finish() {
 
 size_t SurfelTree::memory_bytes() const {
     return surfels_.size() * sizeof(Surfel) + nodes_.size() * sizeof(Node) +
-           boxes_.size() * sizeof(Box) + order_.size() * sizeof(uint32_t) +
+           boxes_.size() * sizeof(Box) + wide_.memory_bytes() + order_.size() * sizeof(uint32_t) +
            level_start_.size() * sizeof(uint32_t);
 }
 
