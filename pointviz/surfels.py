@@ -153,7 +153,7 @@ class SurfelScene:
         of the node from its mean plane (flat regions stop earlier).
     traversal : {"wide", "binary"}
         ``"wide"`` (default) tests two tree levels' bounds at once with SIMD (the wide nodes
-        collapsed from the binary tree, ~14 bytes per surfel more); ``"binary"`` visits the
+        collapsed from the binary tree, 12-17 bytes per surfel more); ``"binary"`` visits the
         binary tree one node at a time and builds no wide nodes.
         Both take the same decisions (level of detail, culling, boxes): hits agree, and any-hit
         results are identical. The wide traversal applies when the options' ``box_depth`` is the

@@ -110,7 +110,7 @@ def test_wide_nodes_memory_and_option(rng):
     wide, binary = _pair(cloud)
     n = wide.n_surfels
     extra = (wide.memory_bytes - binary.memory_bytes) / n
-    assert 0 < extra <= 16.0, extra  # wide.h: ~14 bytes per surfel
+    assert 0 < extra <= 17.0, extra  # wide.h: 12-17 bytes per surfel
     assert wide.trace_options().wide and not binary.trace_options().wide
     with pytest.raises(InputError, match="traversal: expected one of"):
         SurfelScene(cloud, traversal="quad")

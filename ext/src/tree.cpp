@@ -259,8 +259,8 @@ SurfelTree SurfelTreeBuild::finish() {
     tree_.box_depth_ = std::min<uint32_t>(box_depth_, levels);
     boxes.resize(level_start_[tree_.box_depth_]);
     boxes.shrink_to_fit();
+    if (wide_) tree_.wide_ = WideTree(nodes_, boxes, level_start_, tree_.box_depth_);
     tree_.boxes_ = std::move(boxes);
-    if (wide_) tree_.wide_ = WideTree(nodes_, level_start_, tree_.box_depth_);
     tree_.build_seconds_ += seconds_since(t0);
     stage_ = 4;
     return std::move(tree_);

@@ -109,57 +109,69 @@ bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof(float)) == 
 /// Every lane of every wide node holds what its binary node gives the scalar tests.
 void test_collapse() {
     for (uint32_t leaf : {1u, 8u, 31u})
-        for (uint32_t bd : {0u, 1u, 3u, 6u}) {
+        for (uint32_t bd : {0u, 1u, 3u, 6u, 255u}) {
             const Scene s = make_scene(Shape::RandomDisks, 3000, 11 + leaf);
             const SurfelTree tree = build_tree(s, leaf, bd);
             const WideTree &wide = tree.wide();
             const auto &nodes = tree.nodes();
+            const auto &boxes = tree.boxes();
             const auto &ls = tree.level_start();
             CHECK(wide.box_depth() == tree.box_depth(), "leaf %u box %u: box depth %u", leaf, bd,
                   wide.box_depth());
             size_t bad = 0, count = 0;
-            auto lane_ok = [&](const WideNode &w, int k, const Node &nd, uint32_t ref) {
-                return same_bits(w.cx[k], nd.c.x) && same_bits(w.cy[k], nd.c.y) &&
-                       same_bits(w.cz[k], nd.c.z) && same_bits(w.r[k], nd.radius) &&
-                       w.ax[k] == nd.axis_q[0] && w.ay[k] == nd.axis_q[1] &&
-                       w.az[k] == nd.axis_q[2] && w.cone_q[k] == nd.cone_q &&
-                       w.slab_q[k] == nd.slab_q() && w.ref[k] == ref;
+            // One lane: the node's cone, its leaf range or wide node, and its bound.
+            auto lane_ok = [&](const auto &w, int k, uint32_t x) {
+                const Node &nd = nodes[x];
+                const uint32_t ref = nd.is_leaf() ? nd.index_count : (wide.has(x) ? wide.index_of(x) : 0u);
+                return w.ax[k] == nd.axis_q[0] && w.ay[k] == nd.axis_q[1] &&
+                       w.az[k] == nd.axis_q[2] && w.cone_q[k] == nd.cone_q && w.ref[k] == ref;
             };
+            auto sphere_ok = [&](const WideNode &w, int k, uint32_t x) {
+                const Node &nd = nodes[x];
+                return lane_ok(w, k, x) && same_bits(w.cx[k], nd.c.x) && same_bits(w.cy[k], nd.c.y) &&
+                       same_bits(w.cz[k], nd.c.z) && same_bits(w.r[k], nd.radius) &&
+                       w.slab_q[k] == nd.slab_q();
+            };
+            auto box_ok = [&](const WideBoxNode &w, int k, uint32_t x) {
+                const Box &b = boxes[x];
+                return x < boxes.size() && lane_ok(w, k, x) && same_bits(w.lx[k], b.lo.x) &&
+                       same_bits(w.ly[k], b.lo.y) && same_bits(w.lz[k], b.lo.z) &&
+                       same_bits(w.hx[k], b.hi.x) && same_bits(w.hy[k], b.hi.y) &&
+                       same_bits(w.hz[k], b.hi.z);
+            };
+            const uint32_t first = WideTree::first_level(tree.box_depth());
             for (uint32_t lvl = 0; lvl < tree.depth(); ++lvl) {
-                const bool wide_level = lvl >= WideTree::first_level(tree.box_depth()) &&
-                                        (lvl - WideTree::first_level(tree.box_depth())) % 2 == 0;
                 for (uint32_t i = ls[lvl]; i < ls[lvl + 1]; ++i) {
                     const Node &p = nodes[i];
-                    const bool want = wide_level && !p.is_leaf();
+                    const bool want = lvl % 2 == first % 2 && !p.is_leaf();
                     if (wide.has(i) != want) {
                         ++bad;
                         continue;
                     }
                     if (!want) continue;
                     ++count;
-                    const WideNode &w = wide.of(i);
+                    const bool box = wide.box_level(lvl);
+                    bad += box != (lvl + 2 < tree.box_depth());  // every lane a box, or none
                     for (uint32_t j = 0; j < 2; ++j) {
-                        const Node &x = nodes[p.index() + j];
-                        if (!lane_ok(w, int(j), x, x.is_leaf() ? x.index_count : 0u)) ++bad;
-                        for (uint32_t k = 0; k < 2; ++k) {
-                            const int lane = int(2 + 2 * j + k);
-                            if (x.is_leaf()) {
-                                bad += !std::isnan(w.r[lane]);
-                                continue;
-                            }
-                            const uint32_t y = x.index() + k;
-                            const Node &yn = nodes[y];
-                            const uint32_t ref = yn.is_leaf() ? yn.index_count : kNoWide;
-                            if (!yn.is_leaf() && (!wide.has(y) || &wide.node(w.ref[lane]) != &wide.of(y)))
-                                ++bad;
-                            if (!lane_ok(w, lane, yn, yn.is_leaf() ? ref : w.ref[lane])) ++bad;
+                        const uint32_t x = p.index() + j;
+                        std::vector<uint32_t> lanes{x};
+                        if (!nodes[x].is_leaf()) lanes = {x, nodes[x].index(), nodes[x].index() + 1};
+                        for (size_t m = 0; m < lanes.size(); ++m) {
+                            const int k = m == 0 ? int(j) : int(2 + 2 * j + (m - 1));
+                            const bool ok = box ? box_ok(wide.box_node(wide.index_of(i)), k, lanes[m])
+                                                : sphere_ok(wide.node(wide.index_of(i)), k, lanes[m]);
+                            bad += !ok;
                         }
+                        if (!box && nodes[x].is_leaf())  // a leaf's children: absent lanes
+                            for (int k = int(2 + 2 * j); k < int(4 + 2 * j); ++k)
+                                bad += !std::isnan(wide.node(wide.index_of(i)).r[k]);
                     }
                 }
             }
             CHECK(bad == 0, "leaf %u box %u: %zu wide lanes or nodes wrong", leaf, bd, bad);
-            CHECK(count == wide.nodes().size(), "leaf %u box %u: %zu of %zu wide nodes reached",
-                  leaf, bd, count, wide.nodes().size());
+            CHECK(count == wide.nodes().size() + wide.box_nodes().size(),
+                  "leaf %u box %u: %zu of %zu wide nodes reached", leaf, bd, count,
+                  wide.nodes().size() + wide.box_nodes().size());
             CHECK(tree.memory_bytes() >= wide.memory_bytes(), "memory counts the wide nodes");
         }
 }
@@ -198,7 +210,7 @@ void test_wide_equals_binary() {
     size_t rays_total = 0, blended_differ = 0;
     for (int si = 0; si < 3; ++si)
         for (uint32_t leaf : {1u, 8u, 31u}) {
-            const uint32_t bd = leaf == 8 ? 4u : (leaf == 1 ? 0u : 1u);
+            const uint32_t bd = leaf == 8 ? 4u : (leaf == 1 ? (si == 1 ? 255u : 0u) : (si == 2 ? 7u : 1u));
             const Scene s = make_scene(shapes[si], si == 0 ? 2000 : 6000, 100 + si * 7 + leaf);
             const SurfelTree tree = build_tree(s, leaf, bd);
             const std::vector<double> rays = make_rays(500, 900 + si * 7 + leaf);
@@ -316,6 +328,10 @@ void test_other_box_depth_falls_back() {
     CHECK(use_wide(tree, o), "box depth 4 on a box-depth-4 tree runs wide");
     o.box_depth = 100;  // only the tree's 4 levels have boxes: the same as 4
     CHECK(use_wide(tree, o), "box depth 100 on a box-depth-4 tree runs wide");
+    const SurfelTree all_boxes = build_tree(s, 8, 255);  // boxes on every level
+    o.box_depth = 255;
+    CHECK(use_wide(all_boxes, o) && all_boxes.wide().nodes().empty() &&
+              !all_boxes.wide().box_nodes().empty(), "a tree of boxes runs wide on box nodes");
     o.box_depth = 2;
     CHECK(!use_wide(tree, o), "box depth 2 on a box-depth-4 tree runs binary");
     o.wide = false;
