@@ -45,12 +45,14 @@ sanitize: deps
 	cmake -S tests/cpp -B build/sanitize -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_SCALAR=OFF >/dev/null
 	cmake --build build/sanitize -j2
 	$(SANITIZE_ENV) ./build/sanitize/core_tests
+	$(SANITIZE_ENV) ./build/sanitize/wide_tests
 	$(SANITIZE_ENV) ./build/sanitize/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize/reader_tests
 	$(SANITIZE_ENV) ./build/sanitize/preprocess_tests
 	cmake -S tests/cpp -B build/sanitize-scalar -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_SCALAR=ON >/dev/null
 	cmake --build build/sanitize-scalar -j2
 	$(SANITIZE_ENV) ./build/sanitize-scalar/core_tests
+	$(SANITIZE_ENV) ./build/sanitize-scalar/wide_tests
 	$(SANITIZE_ENV) ./build/sanitize-scalar/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize-scalar/reader_tests
 	$(SANITIZE_ENV) ./build/sanitize-scalar/preprocess_tests

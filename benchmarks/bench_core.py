@@ -22,6 +22,9 @@ measured in the same run on the same surfels, rays and threads:
   beside it, measured right after (not interleaved);
 * Mrays/s per core (throughput / threads), the figure to hold against tinybvh-class CPU
   tracers;
+* the same pointviz scene traversed by the binary tree (``traversal="binary"``), interleaved
+  with the wide traversal (the default) and Embree: its throughput, wide/binary ratios and how
+  often the two traversals give the same t, nearest surfel and any-hit answer;
 * anchors on the source mesh with the same rays: Embree triangles (same harness) and Open3D's
   ``RaycastingScene``;
 * peak RSS after each phase.
@@ -369,22 +372,37 @@ def build_pair(model: common.SurfelModel, args, probe: common.PointvizProbe, thr
     return embree, pv, builds
 
 
-def paired_throughput(embree: EmbreeScene, pv, rays: np.ndarray, tmax: np.ndarray,
-                      modes: tuple[int, int], repeat: int) -> dict:
-    """Interleave Embree (its best modes) and pointviz runs; fastest of each, in Mrays/s.
+def binary_twin(model: common.SurfelModel, args, probe: common.PointvizProbe, threads: int):
+    """The same pointviz scene traversed by the binary tree (``traversal="binary"``), the
+    baseline of the wide traversal; None when this pointviz has no such option."""
+    if not (probe.available and model.cloud is not None):
+        return None
+    try:
+        return probe.module.SurfelScene(model.cloud, variant=args.variant, threads=threads,
+                                        traversal="binary")
+    except TypeError:
+        return None
 
-    Alternating the two engines within each repeat exposes both to the same load on a shared
-    machine, which is what makes the ratio meaningful.
+
+def paired_throughput(embree: EmbreeScene, pv, rays: np.ndarray, tmax: np.ndarray,
+                      modes: tuple[int, int], repeat: int, pv_binary=None) -> dict:
+    """Interleave Embree (its best modes) and pointviz runs (wide traversal, and the binary one
+    when ``pv_binary`` is given); fastest of each, in Mrays/s.
+
+    Alternating the engines within each repeat exposes all to the same load on a shared
+    machine, which is what makes the ratios meaningful.
     """
     n = len(rays)
-    best = {"embree_closest": math.inf, "pointviz_closest": math.inf,
-            "embree_occluded": math.inf, "pointviz_occluded": math.inf}
     calls = {
         "embree_closest": lambda: embree.intersect(rays, mode=modes[0]),
         "pointviz_closest": lambda: pv.cast_rays(rays, stats=False),
         "embree_occluded": lambda: embree.occluded(rays, tmax, mode=modes[1]),
         "pointviz_occluded": lambda: pv.occluded(rays, tmax, stats=False),
     }
+    if pv_binary is not None:
+        calls["binary_closest"] = lambda: pv_binary.cast_rays(rays, stats=False)
+        calls["binary_occluded"] = lambda: pv_binary.occluded(rays, tmax, stats=False)
+    best = dict.fromkeys(calls, math.inf)
     for _ in range(max(1, repeat)):
         for key, fn in calls.items():
             best[key] = min(best[key], common.time_best(fn, 1)[0])
@@ -418,8 +436,9 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
     tmax_sets: dict[str, np.ndarray] = {}
     for threads in args.threads:
         rec = {"embree_discs": {}, "embree_triangles": {}, "open3d": {}, "pointviz": {},
-               "ratios": {}, "agreement": {}}
+               "pointviz_binary": {}, "ratios": {}, "agreement": {}}
         scene, pv, builds = build_pair(model, args, probe, threads)
+        pv_binary = binary_twin(model, args, probe, threads)
         try:
             # Embree discs (the reference for tmax and agreement): every query mode.
             rec["embree_discs"] = {"build_s": builds["embree"],
@@ -451,8 +470,27 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                     occ = np.asarray(pv.occluded(rays, tmax), dtype=bool)
                     modes = (_mode_number(ed["closest_best_mode"]),
                              _mode_number(ed["occluded_best_mode"]))
-                    paired = paired_throughput(scene, pv, rays, tmax, modes, args.repeat)
+                    paired = paired_throughput(scene, pv, rays, tmax, modes, args.repeat,
+                                               pv_binary)
                     t_pv = np.asarray(res["t_hit"], dtype=np.float32)
+                    if pv_binary is not None:
+                        res_b = pv_binary.cast_rays(rays)
+                        t_b = np.asarray(res_b["t_hit"], dtype=np.float32)
+                        occ_b = np.asarray(pv_binary.occluded(rays, tmax), dtype=bool)
+                        rec["pointviz_binary"]["bytes_per_surfel"] = (pv_binary.memory_bytes
+                                                                      / model.n)
+                        rec["pointviz_binary"][set_name] = {
+                            "closest_best": paired["binary_closest"],
+                            "occluded_best": paired["binary_occluded"],
+                            "stats": {k: float(v) for k, v in pv_binary.last_stats.items()
+                                      if np.isscalar(v)},
+                            # the wide traversal against the binary one on the same rays
+                            "same_t_fraction": float(np.mean(
+                                (t_b == t_pv) | (np.isinf(t_b) & np.isinf(t_pv)))),
+                            "same_nearest_fraction": float(np.mean(
+                                np.asarray(res_b["index"]) == np.asarray(res["index"]))),
+                            "same_occluded_fraction": float(np.mean(occ_b == occ)),
+                        }
                     rec["pointviz"][set_name] = {
                         "closest_best": paired["pointviz_closest"],
                         "occluded_best": paired["pointviz_occluded"],
@@ -471,6 +509,17 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                         "occluded_throughput": (paired["pointviz_occluded"]
                                                 / paired["embree_occluded"]),
                     }
+                    if pv_binary is not None:
+                        rec["ratios"][set_name].update({
+                            "binary_closest_throughput": (paired["binary_closest"]
+                                                          / paired["embree_closest"]),
+                            "binary_occluded_throughput": (paired["binary_occluded"]
+                                                           / paired["embree_occluded"]),
+                            "wide_vs_binary_closest": (paired["pointviz_closest"]
+                                                       / paired["binary_closest"]),
+                            "wide_vs_binary_occluded": (paired["pointviz_occluded"]
+                                                        / paired["binary_occluded"]),
+                        })
                 rec["ratios"]["build_time"] = builds["pointviz"] / builds["embree"]
                 rec["ratios"]["build_time_core_timers"] = (builds["pointviz_core"]
                                                            / builds["embree_core"])
@@ -478,7 +527,7 @@ def run_model(model: common.SurfelModel, args, probe: common.PointvizProbe) -> d
                                                      / rec["embree_discs"]["bytes_per_surfel"])
         finally:
             scene.close()
-            del pv
+            del pv, pv_binary
         rec["rss_after_pointviz"] = common.peak_rss_bytes()
         # Embree one-sided discs (back-facing hits filtered out): the semantics of a renderer that
         # culls back-facing surfels; agreement columns compare it with pointviz.
@@ -597,6 +646,18 @@ def print_rows(model: common.SurfelModel, threads: int, rec: dict) -> None:
                   f"{pvr['closest_best']:.3g} / {pvr['occluded_best']:.3g} Mr/s "
                   f"({pvr['closest_best'] / threads:.3g} / {pvr['occluded_best'] / threads:.3g} "
                   "Mr/s per core)")
+            if "wide_vs_binary_closest" in r[set_name]:
+                b = rec["pointviz_binary"][set_name]
+                print(f"{'':>7}   binary traversal {set_name}: {b['closest_best']:.3g} / "
+                      f"{b['occluded_best']:.3g} Mr/s ({b['closest_best'] / threads:.3g} / "
+                      f"{b['occluded_best'] / threads:.3g} per core) = "
+                      f"{r[set_name]['binary_closest_throughput']:.2f}x / "
+                      f"{r[set_name]['binary_occluded_throughput']:.2f}x embree discs; "
+                      f"wide/binary {r[set_name]['wide_vs_binary_closest']:.2f}x / "
+                      f"{r[set_name]['wide_vs_binary_occluded']:.2f}x; same t "
+                      f"{b['same_t_fraction']:.5f}, nearest {b['same_nearest_fraction']:.5f}, "
+                      f"any hit {b['same_occluded_fraction']:.5f}; binary "
+                      f"{rec['pointviz_binary']['bytes_per_surfel']:.1f} B/surfel")
             if "closest_vs_one_sided" in r[set_name]:
                 print(f"{'':>7}   vs one-sided embree discs ({set_name}, not interleaved): closest "
                       f"{r[set_name]['closest_vs_one_sided']:.2f}x, occlusion "

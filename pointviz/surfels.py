@@ -55,6 +55,8 @@ _ALL_LEVELS = 255
 
 #: Instruction sets of the traversal kernels ("auto": the best this CPU runs, :func:`best_isa`).
 ISAS = ("auto", "base", "sse42", "avx2", "avx512")
+#: Traversals of the surfel tree (``SurfelScene(traversal=...)``): the wide one by default.
+TRAVERSALS = ("wide", "binary")
 
 
 def available_isas() -> tuple[str, ...]:
@@ -149,6 +151,13 @@ class SurfelScene:
     lod_criterion : {"size", "deviation"}
         When LoD stops descending: the paper's projected sphere size, or the projected deviation
         of the node from its mean plane (flat regions stop earlier).
+    traversal : {"wide", "binary"}
+        ``"wide"`` (default) tests two tree levels' bounds at once with SIMD (the wide nodes
+        collapsed from the binary tree, 12-17 bytes per surfel more); ``"binary"`` visits the
+        binary tree one node at a time and builds no wide nodes.
+        Both take the same decisions (level of detail, culling, boxes): hits agree, and any-hit
+        results are identical. The wide traversal applies when the options' ``box_depth`` is the
+        tree's (otherwise the binary one runs).
     isa : {"auto", "base", "sse42", "avx2", "avx512"}
         Instruction set of the traversal kernels; "auto" (default) runs the best this CPU has
         (:func:`best_isa`). Results never depend on it.
@@ -175,7 +184,8 @@ class SurfelScene:
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
                  lod: bool | None = None, cull: bool | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
-                 lod_criterion: str = "size", slabs: bool = True, isa: str = "auto",
+                 lod_criterion: str = "size", slabs: bool = True, traversal: str = "wide",
+                 isa: str = "auto",
                  threads: int | None = None, origin=None, keep_cloud: bool = True,
                  consume_cloud: bool = False):
         if variant not in VARIANTS:
@@ -203,6 +213,8 @@ class SurfelScene:
         if not keep_cloud and VARIANTS[variant].get("tree") == "kdtree":
             raise InputError("keep_cloud=False: the kdtree variant keeps no copy of the surfels "
                              "to answer extent() from; use another variant or keep the cloud")
+        if traversal not in TRAVERSALS:
+            raise InputError(f"traversal: expected one of {TRAVERSALS}, got {traversal!r}")
         if isa not in ISAS:
             raise InputError(f"isa: expected one of {ISAS}, got {isa!r}")
         if isa != "auto" and isa not in available_isas():
@@ -214,7 +226,7 @@ class SurfelScene:
         self._init_kwargs = dict(variant=variant, interpolation=interpolation, lod=lod, cull=cull,
                                  box_depth=box_depth, lod_pixels=lod_pixels, window=window,
                                  leaf_size=leaf_size, lod_criterion=lod_criterion, slabs=slabs,
-                                 isa=isa, threads=threads, origin=origin)
+                                 traversal=traversal, isa=isa, threads=threads, origin=origin)
         self.variant = variant
         self.interpolation = interpolation
         knobs = dict(VARIANTS[variant])
@@ -254,7 +266,8 @@ class SurfelScene:
             held = {"points": points}
             del points  # held's is the only reference of this call: the build may drop it
             self._tree = self._build_tree(cloud, held, origin, int(leaf_size),
-                                          int(min(bd, _ALL_LEVELS)), consume_cloud)
+                                          int(min(bd, _ALL_LEVELS)), consume_cloud,
+                                          traversal == "wide")
         if not keep_cloud:
             # Drop every reference to the caller's arrays.
             self.cloud = None
@@ -268,20 +281,21 @@ class SurfelScene:
         self._options.lod_criterion = getattr(_core.LodCriterion, lod_criterion)
         self._options.slabs = bool(slabs)
         self._options.isa = getattr(_core.Isa, isa)
+        self._options.wide = traversal == "wide"
         self.last_stats: dict = {}
 
     def _build_tree(self, cloud, held: dict, origin, leaf_size: int, box_depth: int,
-                    consume: bool):
+                    consume: bool, wide: bool):
         """The tree, built in the core's three stages (:class:`pointviz._core.SurfelTreeBuild`)
         from ``held["points"]`` (popped: the caller keeps no reference) and the cloud's other
         arrays. With ``consume`` the cloud hands its arrays over and each is released as soon as
         its stage has copied it, so that the build's peak memory holds at most part of the
-        cloud."""
+        cloud. ``wide``: also build the wide nodes (the binary traversal does not need them)."""
         if consume:
             held.update(cloud.hand_over())
         points = held.pop("points")
         build = _core.SurfelTreeBuild(points, origin, leaf_size=leaf_size, box_depth=box_depth,
-                                      threads=self.threads or 0)
+                                      threads=self.threads or 0, wide=wide)
         del points
         if consume:
             normals, radii, colors = (held.pop(k) for k in ("normals", "radii", "colors"))
@@ -414,7 +428,7 @@ class SurfelScene:
         :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa"):
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide"):
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):
             _, max_error = check_lod(lod_pixels, max_error)

@@ -156,10 +156,10 @@ SurfelArrays surfel_arrays(const CArray<double> &points, const CArray<float> &no
 std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> normals,
                                       CArray<float> radii, std::optional<CArray<float>> colors,
                                       std::array<double, 3> origin, uint32_t leaf_size,
-                                      uint32_t box_depth, int threads, nb::object poll) {
+                                      uint32_t box_depth, int threads, bool wide, nb::object poll) {
     SurfelCopies keep;
     SurfelArrays in = surfel_arrays(points, normals, radii, colors, keep);
-    BuildOptions opt{leaf_size, box_depth, threads};
+    BuildOptions opt{leaf_size, box_depth, threads, wide};
     Progress progress;
     return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &p) {
         auto tree = std::make_unique<SurfelTree>(in, origin.data(), opt);
@@ -171,12 +171,12 @@ std::unique_ptr<SurfelTree> make_tree(CArray<double> points, CArray<float> norma
 /// Stage 1 of a staged build (see SurfelTreeBuild): positions and topology.
 std::unique_ptr<SurfelTreeBuild> make_tree_build(CArray<double> points, std::array<double, 3> origin,
                                  uint32_t leaf_size, uint32_t box_depth, int threads,
-                                 nb::object poll) {
+                                 bool wide, nb::object poll) {
     size_t n = points.shape(0);
     check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
     std::vector<double> copy;
     const double *p = aligned_data(points.data(), 3 * n, copy);
-    BuildOptions opt{leaf_size, box_depth, threads};
+    BuildOptions opt{leaf_size, box_depth, threads, wide};
     Progress progress;
     return run_with_progress(progress, poll_or_ambient(poll), [&](Progress &pr) {
         auto build = std::make_unique<SurfelTreeBuild>(p, n, origin.data(), opt);
@@ -505,7 +505,8 @@ NB_MODULE(_core, m) {
         .def_rw("lod_max_extent", &TraceOptions::lod_max_extent)
         .def_rw("max_error", &TraceOptions::max_error)
         .def_rw("budget_scale", &TraceOptions::budget_scale)
-        .def_rw("isa", &TraceOptions::isa);
+        .def_rw("isa", &TraceOptions::isa)
+        .def_rw("wide", &TraceOptions::wide);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())
@@ -626,7 +627,7 @@ NB_MODULE(_core, m) {
 
     nb::class_<SurfelTreeBuild>(m, "SurfelTreeBuild")
         .def(nb::new_(&make_tree_build), "points"_a, "origin"_a, "leaf_size"_a = 8,
-             "box_depth"_a = 0, "threads"_a = 0, "poll"_a.none() = nb::none())
+             "box_depth"_a = 0, "threads"_a = 0, "wide"_a = true, "poll"_a.none() = nb::none())
         .def("add_surfels", &tree_build_add_surfels, "normals"_a, "radii"_a, "colors"_a.none(),
              "poll"_a.none() = nb::none())
         .def("finish", &tree_build_finish, "poll"_a.none() = nb::none())
@@ -635,9 +636,10 @@ NB_MODULE(_core, m) {
 
     nb::class_<SurfelTree>(m, "SurfelTree")
         .def(nb::new_(&make_tree), "points"_a, "normals"_a, "radii"_a, "colors"_a.none(),
-             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0,
+             "origin"_a, "leaf_size"_a = 8, "box_depth"_a = 0, "threads"_a = 0, "wide"_a = true,
              "poll"_a.none() = nb::none())
         .def_prop_ro("memory_bytes", &SurfelTree::memory_bytes)
+        .def_prop_ro("wide_memory_bytes", [](const SurfelTree &t) { return t.wide().memory_bytes(); })
         .def_prop_ro("build_seconds", &SurfelTree::build_seconds)
         .def_prop_ro("depth", &SurfelTree::depth)
         .def_prop_ro("box_depth", &SurfelTree::box_depth)

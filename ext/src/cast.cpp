@@ -8,6 +8,7 @@
 #include "pointviz/dispatch.h"
 #include "pointviz/parallel.h"
 #include "pointviz/trace.h"
+#include "pointviz/wide_trace.h"
 
 #ifndef POINTVIZ_KERNELS
 #define POINTVIZ_KERNELS kernels_base

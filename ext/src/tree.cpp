@@ -55,6 +55,7 @@ SurfelTreeBuild::SurfelTreeBuild(const double *points, size_t n, const double or
     n_ = n;
     leaf_ = std::clamp<uint32_t>(opt.leaf_size, 1u, kMaxLeafSize);
     box_depth_ = opt.box_depth;
+    wide_ = opt.wide;
     threads_ = resolve_threads(opt.threads);
     const uint32_t leaf = leaf_;
     const int threads = threads_;
@@ -258,6 +259,7 @@ SurfelTree SurfelTreeBuild::finish() {
     tree_.box_depth_ = std::min<uint32_t>(box_depth_, levels);
     boxes.resize(level_start_[tree_.box_depth_]);
     boxes.shrink_to_fit();
+    if (wide_) tree_.wide_ = WideTree(nodes_, boxes, level_start_, tree_.box_depth_);
     tree_.boxes_ = std::move(boxes);
     tree_.build_seconds_ += seconds_since(t0);
     stage_ = 4;
@@ -266,7 +268,7 @@ SurfelTree SurfelTreeBuild::finish() {
 
 size_t SurfelTree::memory_bytes() const {
     return surfels_.size() * sizeof(Surfel) + nodes_.size() * sizeof(Node) +
-           boxes_.size() * sizeof(Box) + order_.size() * sizeof(uint32_t) +
+           boxes_.size() * sizeof(Box) + wide_.memory_bytes() + order_.size() * sizeof(uint32_t) +
            level_start_.size() * sizeof(uint32_t);
 }
 

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <type_traits>
 
 #include "pointviz/disk_kernel.h"
 #include "pointviz/isa.h"
@@ -51,6 +52,9 @@ struct TraceOptions {
     /// they change (shadows on the ground) is not confined to those pixels.
     float budget_scale = 1.f;
     Isa isa = Isa::Auto;      ///< kernels of the batch queries (dispatch.h); all give the same results
+    /// Traverse the wide tree (wide.h, wide_trace.h): two levels' bounds tested at once with
+    /// SIMD, the binary traversal's decisions. false: the binary traversal, for comparison.
+    bool wide = true;
 };
 
 POINTVIZ_ISA_BEGIN
@@ -195,8 +199,13 @@ struct StackEntry {
     uint32_t node;
     float t;           ///< entry parameter of its bound
     uint16_t depth;
-    uint16_t cull;     ///< whether the subtree still needs cone tests
+    uint16_t cull;     ///< kCull: the subtree still needs cone tests; kVisited (wide traversal):
+                       ///< the node's cone was tested when it was pushed
+    uint32_t ref = 0;  ///< with kVisited: the node's WideNode::ref (leaf range or wide node)
 };
+/// kCounted (wide traversal, with kVisited): counted as well (A and B leaves; the grandchildren
+/// it pushes are counted when popped, as the binary traversal counts them).
+constexpr uint16_t kCull = 1, kVisited = 2, kCounted = 4;
 
 /// Tests the ray against node `i`'s bound, box or sphere by depth. Returns the entry t or kInf.
 inline float enter_node(const SurfelTree &tree, uint32_t i, uint32_t depth, const Ray &ray,
@@ -218,9 +227,126 @@ inline float enter_bound(const SurfelTree &tree, uint32_t i, uint32_t depth, con
     return enter_sphere(nd.c, nd.radius, ray.o, ray.d, ray.tmin, tfar);
 }
 
+/// A binary step at interior node `nd`: tests both children's bounds within [ray.tmin, tfar],
+/// pushes the farther one hit and makes the nearer one `e`, the current node (no push). Returns
+/// false when both are missed.
+template <bool kSlabs>
+inline bool binary_step(const SurfelTree &tree, const Node &nd, const Ray &ray, Vec3 inv_d,
+                        float tfar, uint32_t box_depth, bool cull, StackEntry &e,
+                        StackEntry *stack, int &sp) {
+    const uint32_t c0 = nd.index();
+    const uint16_t cd = uint16_t(e.depth + 1);
+    const uint16_t cf = uint16_t(cull ? kCull : 0);
+    float ta = enter_bound<kSlabs>(tree, c0, cd, ray, inv_d, tfar, box_depth);
+    float tb = enter_bound<kSlabs>(tree, c0 + 1, cd, ray, inv_d, tfar, box_depth);
+    if (ta == kInf && tb == kInf) return false;
+    if (ta <= tb) {
+        if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
+        e = {c0, ta, cd, cf};
+    } else {
+        if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
+        e = {c0 + 1, tb, cd, cf};
+    }
+    return true;
+}
+
+/// A node's cone test under culling: false when every normal of its subtree faces away (skip
+/// it); clears `cull` when every normal faces the ray (its subtree needs no more cone tests).
+inline bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
+    if (cull && nd.has_cone()) {
+        float c = dot(nd.axis(), ray.d), s = nd.cone();
+        if (c > s) return false;      // every normal faces away
+        if (c < -s) cull = false;     // every normal faces the ray
+    }
+    return true;
+}
+
+/// Whether level of detail stops at interior node `nd` (`lod`: the ray takes LoD at all).
+/// A node whose normals span more than a hemisphere (two sheets of a thin part, a closed piece)
+/// has no meaningful mean plane: its disk would face anywhere, so LoD descends until the
+/// children face one way (the gate lets no such node through). The gate first: most nodes fail
+/// it, and then need no footprint.
+inline bool lod_stops(const Node &nd, const Ray &ray, const TraceOptions &opt,
+                      const LodGate &gate, bool lod) {
+    if (!lod || !gate.passes(nd)) return false;
+    const float t2 = dot(nd.c - ray.o, ray.d);
+    return t2 > 0.f && lod_stop(nd, ray, t2, opt);
+}
+
+/// The disks of a leaf (`cnt` surfels from `b`), handed to the policy. Returns true when the policy ends the traversal.
+template <class Policy, class Stats>
+inline bool visit_leaf(const SurfelTree &tree, uint32_t b, uint32_t cnt, const Ray &ray,
+                       bool cull, Policy &policy, Stats &stats) {
+    const auto &surfels = tree.surfels();
+    // Every disk of a leaf is tested against the far bound at the leaf's start, as the
+    // eight-lane test does, so that both give the same hits (the closest-hit bound can
+    // grow when a nearer disk with a wider window arrives).
+    const float leaf_tfar = policy.tfar();
+#if defined(POINTVIZ_LEAF_SIMD)
+    if (cnt <= 8) {
+        LeafHits lh;
+        intersect_leaf8(ray, &surfels[b], cnt, leaf_tfar, cull, lh);
+        for (uint32_t k = 0; k < cnt; ++k) stats.disk();
+        for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
+            uint32_t k = uint32_t(__builtin_ctz(m));
+            if (policy.add({lh.t[k], lh.u2[k], lh.facing[k], surfels[b + k].r, b + k})) return true;
+        }
+        return false;
+    }
+#endif
+    for (uint32_t k = b; k < b + cnt; ++k) {
+        const Surfel &s = surfels[k];
+        stats.disk();
+        float facing;
+        DiskHit h;
+        if (!intersect_disk(ray, s.p, s.n, s.r, leaf_tfar, cull, facing, h)) continue;
+        if (policy.add({h.t, h.u2, facing, s.r, k})) return true;
+    }
+    return false;
+}
+
+/// The two children (from `c0`) of a node where level of detail stopped, intersected as disks
+/// and handed to the policy. Returns true when the policy ends the traversal.
+template <class Policy, class Stats>
+inline bool lod_disks(const SurfelTree &tree, uint32_t c0, const Ray &ray, bool cull,
+                      Policy &policy, Stats &stats) {
+    for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
+        const Node &cn = tree.nodes()[ch];
+        stats.disk();
+        Vec3 cnorm = normalize(cn.axis());
+        if (cull && dot(cnorm, ray.d) > cn.cone()) continue;
+        float r = cn.radius * kLodDiskScale;
+        float facing;
+        DiskHit h;
+        if (!intersect_disk(ray, cn.c, cnorm, r, policy.tfar(), cull, facing, h)) continue;
+        if (policy.add({h.t, h.u2, facing, r, ch | kNodeFlag})) return true;
+    }
+    return false;
+}
+
+/// What a traversal finds once per ray: the inverse direction (box tests), whether level of
+/// detail applies, its gate, and the entry parameter of the root's bound (kInf: missed).
+struct RaySetup {
+    Vec3 inv_d;
+    bool lod;
+    LodGate gate;
+    float t_root;
+
+    template <bool kSlabs, class Policy>
+    RaySetup(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+             const LodGates &gates, const Policy &policy, std::integral_constant<bool, kSlabs>)
+        : inv_d{1.f / ray.d.x, 1.f / ray.d.y, 1.f / ray.d.z},
+          // A footprint that does not grow (width0 > 0, spread 0: a shadow ray toward a hard
+          // light) still takes LoD: what matters is the beam's width where the node is.
+          lod(opt.lod && (ray.spread > 0.f || ray.width0 > 0.f)),
+          gate(gates.of(ray)),
+          t_root(enter_bound<kSlabs>(tree, 0, 0, ray, inv_d, policy.tfar(), opt.box_depth)) {}
+};
+
 }  // namespace detail
 
-/// The traversal loop shared by every query (paper Figure 3b).
+/// The binary traversal loop (paper Figure 3b): one node at a time, its two children's bounds
+/// tested one after the other.
 ///
 /// `cull` asks for back-face culling: disks facing away from the ray are skipped, and so are
 /// subtrees whose normal cone faces away entirely; once a cone faces the ray entirely its
@@ -230,100 +356,32 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
                    const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
     using namespace detail;
     const auto &nodes = tree.nodes();
-    const auto &surfels = tree.surfels();
-    const Vec3 inv_d{1.f / ray.d.x, 1.f / ray.d.y, 1.f / ray.d.z};
-    // A footprint that does not grow (width0 > 0, spread 0: a shadow ray toward a hard light)
-    // still takes LoD: what matters is the beam's width where the node is.
-    const bool lod = opt.lod && (ray.spread > 0.f || ray.width0 > 0.f);
+    const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
+    const Vec3 inv_d = rs.inv_d;
+    const bool lod = rs.lod;
     const uint32_t box_depth = opt.box_depth;
-    const LodGate gate = gates.of(ray);
+    const LodGate gate = rs.gate;
 
     StackEntry stack[kStackSize];
     int sp = 0;
-    auto enter = enter_bound<kSlabs>;
-    float t_root = enter(tree, 0, 0, ray, inv_d, policy.tfar(), box_depth);
-    if (t_root == kInf) return;
+    if (rs.t_root == kInf) return;
     // The current node; the near child of an interior node is taken next without a push.
-    StackEntry e{0u, t_root, 0, uint16_t(cull)};
+    StackEntry e{0u, rs.t_root, 0, uint16_t(cull)};
 
     for (;;) {
         bool descend = false;
         const Node &nd = nodes[e.node];
         stats.node(e.depth);
         bool sub_cull = e.cull != 0;
-        bool skip = false;
-        if (sub_cull && nd.has_cone()) {
-            float c = dot(nd.axis(), ray.d), s = nd.cone();
-            if (c > s) skip = true;             // every normal faces away
-            else if (c < -s) sub_cull = false;  // every normal faces the ray
-        }
-        if (skip) {
+        if (!cone_admits(nd, ray, sub_cull)) {
         } else if (nd.is_leaf()) {
-            uint32_t b = nd.index(), cnt = nd.count();
-            // Every disk of a leaf is tested against the far bound at the leaf's start, as the
-            // eight-lane test does, so that both give the same hits (the closest-hit bound can
-            // grow when a nearer disk with a wider window arrives).
-            const float leaf_tfar = policy.tfar();
-#if defined(POINTVIZ_LEAF_SIMD)
-            if (cnt <= 8) {
-                LeafHits lh;
-                intersect_leaf8(ray, &surfels[b], cnt, leaf_tfar, sub_cull, lh);
-                for (uint32_t k = 0; k < cnt; ++k) stats.disk();
-                for (uint32_t m = lh.mask; m != 0; m &= m - 1) {
-                    uint32_t k = uint32_t(__builtin_ctz(m));
-                    if (policy.add({lh.t[k], lh.u2[k], lh.facing[k], surfels[b + k].r, b + k})) return;
-                }
-                cnt = 0;  // done: skip the scalar loop
-            }
-#endif
-            for (uint32_t k = b; k < b + cnt; ++k) {
-                const Surfel &s = surfels[k];
-                stats.disk();
-                float facing;
-                DiskHit h;
-                if (!intersect_disk(ray, s.p, s.n, s.r, leaf_tfar, sub_cull, facing, h)) continue;
-                if (policy.add({h.t, h.u2, facing, s.r, k})) return;
-            }
+            if (visit_leaf(tree, nd.index(), nd.count(), ray, sub_cull, policy, stats)) return;
+        } else if (lod_stops(nd, ray, opt, gate, lod)) {
+            // Small enough: intersect the children as disks and let the policy blend them.
+            if (lod_disks(tree, nd.index(), ray, sub_cull, policy, stats)) return;
         } else {
-            const uint32_t c0 = nd.index();
-            // A node whose normals span more than a hemisphere (two sheets of a thin part, a
-            // closed piece) has no meaningful mean plane: its disk would face anywhere, so LoD
-            // descends until the children face one way (the gate lets no such node through).
-            // The gate first: most nodes fail it, and then need no footprint.
-            bool stop = false;
-            if (lod && gate.passes(nd)) {
-                const float t2 = dot(nd.c - ray.o, ray.d);
-                stop = t2 > 0.f && lod_stop(nd, ray, t2, opt);
-            }
-            if (stop) {
-                // Small enough: intersect the children as disks and let the policy blend them.
-                for (uint32_t ch = c0; ch < c0 + 2; ++ch) {
-                    const Node &cn = nodes[ch];
-                    stats.disk();
-                    Vec3 cnorm = normalize(cn.axis());
-                    if (sub_cull && dot(cnorm, ray.d) > cn.cone()) continue;
-                    float r = cn.radius * kLodDiskScale;
-                    float facing;
-                    DiskHit h;
-                    if (!intersect_disk(ray, cn.c, cnorm, r, policy.tfar(), sub_cull, facing, h)) continue;
-                    if (policy.add({h.t, h.u2, facing, r, ch | kNodeFlag})) return;
-                }
-            } else {
-                const uint16_t cd = uint16_t(e.depth + 1);
-                const uint16_t cf = uint16_t(sub_cull);
-                float ta = enter(tree, c0, cd, ray, inv_d, policy.tfar(), box_depth);
-                float tb = enter(tree, c0 + 1, cd, ray, inv_d, policy.tfar(), box_depth);
-                if (ta != kInf || tb != kInf) {
-                    descend = true;
-                    if (ta <= tb) {
-                        if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
-                        e = {c0, ta, cd, cf};
-                    } else {
-                        if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
-                        e = {c0 + 1, tb, cd, cf};
-                    }
-                }
-            }
+            descend = binary_step<kSlabs>(tree, nd, ray, inv_d, policy.tfar(), box_depth,
+                                          sub_cull, e, stack, sp);
         }
         if (descend) continue;
         // Pop the nearest pending subtree that can still hold a closer hit.
@@ -334,12 +392,33 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     }
 }
 
+/// The wide traversal (wide_trace.h, which defines it): the same decisions as traverse_impl,
+/// with the bounds of two levels tested at once. Callers that instantiate the queries below
+/// include wide_trace.h.
+template <bool kSlabs, class Policy, class Stats>
+void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats);
+
+/// Whether the wide traversal serves `opt` on `tree`: asked for, and the tree's wide nodes
+/// were built for the box depth the options use (a different one, e.g. boxes on every level,
+/// takes the binary traversal).
+inline bool use_wide(const SurfelTree &tree, const TraceOptions &opt) {
+    return opt.wide && !tree.wide().empty() &&
+           std::min(opt.box_depth, tree.box_depth()) == tree.wide().box_depth();
+}
+
 /// `gates` must be lod_gates(opt) (batches find it once).
 template <class Policy, class Stats>
 void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
               const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
-    if (opt.slabs) traverse_impl<true>(tree, ray, opt, gates, cull, policy, stats);
-    else traverse_impl<false>(tree, ray, opt, gates, cull, policy, stats);
+    if (use_wide(tree, opt)) {
+        if (opt.slabs) traverse_wide_impl<true>(tree, ray, opt, gates, cull, policy, stats);
+        else traverse_wide_impl<false>(tree, ray, opt, gates, cull, policy, stats);
+    } else if (opt.slabs) {
+        traverse_impl<true>(tree, ray, opt, gates, cull, policy, stats);
+    } else {
+        traverse_impl<false>(tree, ray, opt, gates, cull, policy, stats);
+    }
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "pointviz/node.h"
+#include "pointviz/wide.h"
 
 namespace pointviz {
 
@@ -15,6 +16,7 @@ struct BuildOptions {
     uint32_t leaf_size = 8;   ///< most surfels in a leaf (1..31)
     uint32_t box_depth = 0;   ///< nodes shallower than this get an axis-aligned box
     int threads = 0;          ///< 0: all cores
+    bool wide = true;         ///< also collapse the tree into wide nodes (wide.h) for the wide traversal
 };
 
 /// Input arrays of a build, all of length n (colors may be null: white).
@@ -39,6 +41,8 @@ public:
     const std::vector<Node> &nodes() const { return nodes_; }
     /// Boxes of the nodes [0, boxes().size()): every node shallower than box_depth.
     const std::vector<Box> &boxes() const { return boxes_; }
+    /// The wide nodes collapsed from nodes() (wide.h), for the wide traversal (wide_trace.h).
+    const WideTree &wide() const { return wide_; }
     /// order()[k] is the input index of the surfel stored at position k.
     const std::vector<uint32_t> &order() const { return order_; }
     /// First node index of each level; level_start().back() == nodes().size().
@@ -56,6 +60,7 @@ private:
     std::vector<Surfel> surfels_;
     std::vector<Node> nodes_;
     std::vector<Box> boxes_;
+    WideTree wide_;
     std::vector<uint32_t> order_;
     std::vector<uint32_t> level_start_;
     double origin_[3];
@@ -100,6 +105,7 @@ private:
     size_t n_ = 0;
     uint32_t leaf_ = 8, box_depth_ = 0;
     int threads_ = 1;
+    bool wide_ = true;
     int stage_ = 2;
     std::vector<Item> items_;
     std::vector<Range> ranges_;

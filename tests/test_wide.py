@@ -1,0 +1,116 @@
+"""The wide traversal (the default) against the binary one, brute force and analytic surfaces.
+
+The wide tree tests two levels of the binary tree's bounds at once and takes the binary
+traversal's decisions: any hits are identical, every ray finds the same nearest disk, and the
+blended hit agrees except on the rare rays where disks reach the closest-hit policy in another
+order (``ext/include/pointviz/wide_trace.h``). The C++ side (``tests/cpp/wide_tests.cpp``)
+checks the collapse lane by lane and every instruction set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pointviz import PointCloud, SurfelScene, shapes
+from pointviz.errors import InputError
+
+from test_surfels import brute_first_disk, rays_at_sphere, sphere_oracle
+
+
+def _pair(cloud, **kw):
+    """The same scene traversed wide and binary."""
+    return SurfelScene(cloud, traversal="wide", **kw), SurfelScene(cloud, traversal="binary", **kw)
+
+
+def _compare(wide, binary, rays, tmax, **cast_kw):
+    """Closest and any hits of both traversals; returns the closest-hit outputs."""
+    w, b = wide.cast_rays(rays, **cast_kw), binary.cast_rays(rays, **cast_kw)
+    ws, bs = wide.last_stats, binary.last_stats
+    np.testing.assert_array_equal(np.isfinite(w["t_hit"]), np.isfinite(b["t_hit"]))
+    np.testing.assert_array_equal(w["index"], b["index"])  # the same nearest disk (or LoD node)
+    hit = np.isfinite(b["t_hit"])
+    tw, tb = w["t_hit"][hit], b["t_hit"][hit]
+    same = np.abs(tw - tb) <= 1e-5 * (1 + np.abs(tb))
+    same &= np.all(np.abs(w["normals"][hit] - b["normals"][hit]) <= 1e-4, axis=1)
+    assert same.mean() >= 0.99, f"{(~same).sum()} of {hit.sum()} blended hits differ"
+    assert ws["hits"] == bs["hits"]
+    assert ws["nodes_visited"] == pytest.approx(bs["nodes_visited"], rel=0.1)
+    assert ws["disk_tests"] == pytest.approx(bs["disk_tests"], rel=0.05)
+    pixel_angle = cast_kw.get("pixel_angle")
+    occ_w = wide.occluded(rays, tmax, pixel_angle=pixel_angle)
+    occ_b = binary.occluded(rays, tmax, pixel_angle=pixel_angle)
+    np.testing.assert_array_equal(occ_w, occ_b)
+    return w, b
+
+
+@pytest.mark.parametrize("variant", ["full", "lod+cull", "lod"])
+@pytest.mark.parametrize("shape", ["sphere", "torus"])
+def test_wide_equals_binary_on_analytic_shapes(shape, variant, rng):
+    cloud = getattr(shapes, shape)(30000)
+    wide, binary = _pair(cloud, variant=variant)
+    rays = rays_at_sphere(rng, 4000, dist=3.5, spread=2.0)
+    tmax = rng.uniform(1.0, 5.0, len(rays)).astype(np.float32)
+    for pixel_angle in (None, 0.002, 0.02):  # without LoD, fine and coarse LoD
+        _compare(wide, binary, rays, tmax, pixel_angle=pixel_angle)
+    for lod_pixels in ("auto",):  # the error budget's stopping rule
+        _compare(wide, binary, rays, tmax, pixel_angle=0.01, lod_pixels=lod_pixels,
+                 max_error=0.05)
+
+
+def test_wide_equals_binary_with_boxes_slabs_and_interpolation(rng):
+    cloud = shapes.sphere(20000)
+    rays = rays_at_sphere(rng, 3000)
+    tmax = rng.uniform(1.0, 4.0, len(rays)).astype(np.float32)
+    for kw in ({"box_depth": 0}, {"box_depth": 5}, {"slabs": False}, {"interpolation": "none"},
+               {"interpolation": "paper"}, {"leaf_size": 1}, {"leaf_size": 31}):
+        wide, binary = _pair(cloud, **kw)
+        _compare(wide, binary, rays, tmax)
+        _compare(wide, binary, rays, tmax, pixel_angle=0.01)
+
+
+def test_wide_equals_binary_on_random_disks(rng):
+    # Disks at every orientation: cone culling skips and un-culls subtrees everywhere.
+    n = 6000
+    p = rng.normal(size=(n, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    cloud = PointCloud(p, normals=normals, radii=rng.uniform(0.02, 0.08, n),
+                       colors=rng.uniform(0, 1, (n, 3)))
+    wide, binary = _pair(cloud)
+    rays = rays_at_sphere(rng, 3000)
+    tmax = rng.uniform(1.0, 4.0, len(rays)).astype(np.float32)
+    _compare(wide, binary, rays, tmax)
+    _compare(wide, binary, rays, tmax, pixel_angle=0.02)
+
+
+def test_wide_matches_brute_force_and_the_analytic_sphere(rng):
+    cloud = shapes.sphere(8000)
+    scene = SurfelScene(cloud, variant="bvh", box_depth=4, interpolation="none")
+    assert scene.trace_options().wide
+    rays = rays_at_sphere(rng, 400)
+    out = scene.cast_rays(rays)
+    t_brute, _ = brute_first_disk(cloud, rays)
+    hit = np.isfinite(t_brute)
+    np.testing.assert_array_equal(np.isfinite(out["t_hit"]), hit)
+    np.testing.assert_allclose(out["t_hit"][hit], t_brute[hit], rtol=1e-4, atol=1e-5)
+    occ = scene.occluded(rays, np.full(len(rays), 1e30, np.float32))
+    np.testing.assert_array_equal(occ, hit)
+    # and the surface it samples
+    smooth = SurfelScene(cloud).cast_rays(rays)
+    t_true = sphere_oracle(rays, (0, 0, 0), 1.0)
+    both = np.isfinite(t_true) & np.isfinite(smooth["t_hit"])
+    spacing = np.sqrt(4 * np.pi / 8000)
+    assert np.abs(smooth["t_hit"][both] - t_true[both]).mean() < 0.02 * spacing
+
+
+def test_wide_nodes_memory_and_option(rng):
+    cloud = shapes.sphere(20000)
+    wide, binary = _pair(cloud)
+    n = wide.n_surfels
+    extra = (wide.memory_bytes - binary.memory_bytes) / n
+    assert 0 < extra <= 17.0, extra  # wide.h: 12-17 bytes per surfel
+    assert wide.trace_options().wide and not binary.trace_options().wide
+    with pytest.raises(InputError, match="traversal: expected one of"):
+        SurfelScene(cloud, traversal="quad")
