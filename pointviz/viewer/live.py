@@ -428,6 +428,7 @@ class _Accumulator:
         self.camera = camera
         self.spp = 0
         self.sums: dict = {}
+        self._scratch: dict = {}  # one float64 buffer per sum (a pass of n samples times n)
         self.seconds_per_sample: float | None = None
         self.next_denoise = DENOISE_FIRST_SPP
         self.denoise_due = False
@@ -444,11 +445,15 @@ class _Accumulator:
             buf = getattr(frame, name)
             if buf is None:
                 continue
-            w = np.float64(n)
-            if name in self.sums:
-                self.sums[name] += buf * w
+            if name not in self.sums:  # float64 sums: exact for any float32 pass mean x n
+                self.sums[name] = np.zeros(buf.shape, np.float64)
+                self._scratch[name] = np.empty(buf.shape, np.float64)
+            if n == 1:
+                np.add(self.sums[name], buf, out=self.sums[name])
             else:
-                self.sums[name] = buf.astype(np.float64) * w
+                tmp = self._scratch[name]
+                np.multiply(buf, np.float64(n), out=tmp)
+                np.add(self.sums[name], tmp, out=self.sums[name])
         # depth and normal: the newest pass's (the denoiser's guide; means of normals and of
         # infinite depths are not what the buffers hold)
         self.depth, self.normal = frame.depth, frame.normal
@@ -461,7 +466,8 @@ class _Accumulator:
         from ..rendering import Frame
 
         inv = 1.0 / self.spp
-        m = {k: (v * inv).astype(np.float32) for k, v in self.sums.items()}
+        m = {k: np.multiply(v, inv, out=np.empty(v.shape, np.float32), casting="same_kind")
+             for k, v in self.sums.items()}  # new arrays: frames already shown keep theirs
         stats = dict(last.stats, spp=self.spp)
         out = Frame(m["color"], self.depth, self.normal, m["alpha"], stats, self.camera,
                     albedo=m.get("albedo"), object_alpha=m.get("object_alpha"),
