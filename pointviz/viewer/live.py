@@ -51,10 +51,13 @@ COST_SMOOTHING = 0.3
 #: The camera counts as still once it has not changed for this long, seconds (GUI ticks deliver
 #: an orbiting camera several times per traced frame; a pause shorter than this is still motion).
 STILL_DELAY_S = 0.12
-#: Target duration of one accumulation pass while still, seconds: the picture refreshes about
-#: this often, and a camera move waits at most one tile, not one pass, so longer passes only
-#: cost refresh rate, while shorter ones pay the per-call overhead more often.
-STILL_PASS_S = 0.35
+#: Target duration of one accumulation pass while still, seconds (the nearest whole number of
+#: samples): the picture refreshes about this often, and a camera move waits at most one tile,
+#: not one pass, so longer passes only cost refresh rate, while shorter ones pay the per-call
+#: overhead and the window's redraw more often (under Xvfb's software rasteriser a redraw of the
+#: window costs ~50 ms of CPU, taken from the tracer: 1-sample passes of a 0.19 s 640x480 frame
+#: would redraw 5 times a second).
+STILL_PASS_S = 0.4
 #: Most samples per pixel of one accumulation pass, and of the whole accumulation.
 MAX_PASS_SPP = 16
 MAX_STILL_SPP = 1024
@@ -437,7 +440,7 @@ class _Accumulator:
     def next_pass_spp(self) -> int:
         if self.seconds_per_sample is None:
             return 1
-        n = int(STILL_PASS_S / max(self.seconds_per_sample, 1e-6))
+        n = round(STILL_PASS_S / max(self.seconds_per_sample, 1e-6))
         return int(np.clip(n, 1, min(MAX_PASS_SPP, MAX_STILL_SPP - self.spp)))
 
     def add(self, frame, n: int, seconds: float) -> None:
