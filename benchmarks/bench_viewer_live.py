@@ -91,8 +91,8 @@ v = pointviz.view(scene, live=True, orbit={orbit}, width={w}, height={h}, thread
                   report="report.json", overwrite=True,
                   on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
 rep = json.load(open("report.json"))
-res.update({{k: rep.get(k) for k in ("live_fps", "live_resolution", "still_spp", "preview_fps",
-                                     "still_shown")}})
+res.update({{k: rep.get(k) for k in ("live_fps", "live_resolution", "still_spp", "preview_fps")}})
+res["still_shown"] = rep["live"].get("still_shown")
 res["live"] = rep["live"]
 res["gui_latency_s"] = lat
 print("RESULT" + json.dumps(res))

@@ -455,7 +455,7 @@ class _Accumulator:
                 np.add(self.sums[name], buf, out=self.sums[name])
             else:
                 tmp = self._scratch[name]
-                np.multiply(buf, np.float64(n), out=tmp)
+                np.multiply(buf, n, out=tmp, dtype=np.float64)
                 np.add(self.sums[name], tmp, out=self.sums[name])
         # depth and normal: the newest pass's (the denoiser's guide; means of normals and of
         # infinite depths are not what the buffers hold)
