@@ -5,8 +5,10 @@ Armadillo.ply over a mirror ground (the scene of benchmarks/bench_frame.py) with
 viewport, and reads the report: ``live_fps`` (ray-traced frames shown per second while the camera
 moves), ``live_resolution`` (mean fraction of the viewport's pixels traced per moving frame),
 ``still_spp`` (samples per pixel 3 s after the camera stopped) and ``preview_fps`` (the splat
-preview's own rate). A driver thread meanwhile times GUI-thread round trips (``viewer.call``)
-during the live orbit and hold. Anchors, measured in the same run and interleaved with the
+preview's own rate). A driver thread meanwhile times GUI-thread round trips during the live
+orbit and hold (``viewer.call(..., redraw=False)``: a state query that does not itself redraw the
+window, as tests/test_viewer.py and bench_viewer.py time them; with ``redraw=True`` every probe
+redrew the window, which took 1.5 of the 3 s hold's CPU-seconds from the tracer). Anchors, measured in the same run and interleaved with the
 viewer runs: a bare loop of ``render()`` calls on the same built scene (1 spp, shadows, one
 reflection, all cores) at 640x480 and at 320x240 (1/4 of the pixels), at normal priority and
 niced as the live view traces. Targets: live_fps >= 8 at
@@ -73,7 +75,7 @@ def drive(v):
         while not v.closed:
             t = time.perf_counter()
             try:
-                state = v.call(lambda: v.live_script.state, timeout=30)
+                state = v.call(lambda: v.live_script.state, timeout=30, redraw=False)
             except TimeoutError:
                 state = "timeout"
             if state in ("orbit", "hold", "timeout"):
@@ -90,6 +92,7 @@ v = pointviz.view(scene, live=True, orbit={orbit}, width={w}, height={h}, thread
                   on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
 rep = json.load(open("report.json"))
 res.update({{k: rep.get(k) for k in ("live_fps", "live_resolution", "still_spp", "preview_fps")}})
+res["still_shown"] = rep["live"].get("still_shown")
 res["live"] = rep["live"]
 res["gui_latency_s"] = lat
 print("RESULT" + json.dumps(res))

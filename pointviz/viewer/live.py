@@ -51,10 +51,13 @@ COST_SMOOTHING = 0.3
 #: The camera counts as still once it has not changed for this long, seconds (GUI ticks deliver
 #: an orbiting camera several times per traced frame; a pause shorter than this is still motion).
 STILL_DELAY_S = 0.12
-#: Target duration of one accumulation pass while still, seconds: the picture refreshes about
-#: this often, and a camera move waits at most one tile, not one pass, so longer passes only
-#: cost refresh rate, while shorter ones pay the per-call overhead more often.
-STILL_PASS_S = 0.35
+#: Target duration of one accumulation pass while still, seconds (the nearest whole number of
+#: samples): the picture refreshes about this often, and a camera move waits at most one tile,
+#: not one pass, so longer passes only cost refresh rate, while shorter ones pay the per-call
+#: overhead and the window's redraw more often (under Xvfb's software rasteriser a redraw of the
+#: window costs ~50 ms of CPU, taken from the tracer: 1-sample passes of a 0.19 s 640x480 frame
+#: would redraw 5 times a second).
+STILL_PASS_S = 0.4
 #: Most samples per pixel of one accumulation pass, and of the whole accumulation.
 MAX_PASS_SPP = 16
 MAX_STILL_SPP = 1024
@@ -428,6 +431,7 @@ class _Accumulator:
         self.camera = camera
         self.spp = 0
         self.sums: dict = {}
+        self._scratch: dict = {}  # one float64 buffer per sum (a pass of n samples times n)
         self.seconds_per_sample: float | None = None
         self.next_denoise = DENOISE_FIRST_SPP
         self.denoise_due = False
@@ -436,7 +440,7 @@ class _Accumulator:
     def next_pass_spp(self) -> int:
         if self.seconds_per_sample is None:
             return 1
-        n = int(STILL_PASS_S / max(self.seconds_per_sample, 1e-6))
+        n = round(STILL_PASS_S / max(self.seconds_per_sample, 1e-6))
         return int(np.clip(n, 1, min(MAX_PASS_SPP, MAX_STILL_SPP - self.spp)))
 
     def add(self, frame, n: int, seconds: float) -> None:
@@ -444,11 +448,15 @@ class _Accumulator:
             buf = getattr(frame, name)
             if buf is None:
                 continue
-            w = np.float64(n)
-            if name in self.sums:
-                self.sums[name] += buf * w
+            if name not in self.sums:  # float64 sums: exact for any float32 pass mean x n
+                self.sums[name] = np.zeros(buf.shape, np.float64)
+                self._scratch[name] = np.empty(buf.shape, np.float64)
+            if n == 1:
+                np.add(self.sums[name], buf, out=self.sums[name])
             else:
-                self.sums[name] = buf.astype(np.float64) * w
+                tmp = self._scratch[name]
+                np.multiply(buf, n, out=tmp, dtype=np.float64)
+                np.add(self.sums[name], tmp, out=self.sums[name])
         # depth and normal: the newest pass's (the denoiser's guide; means of normals and of
         # infinite depths are not what the buffers hold)
         self.depth, self.normal = frame.depth, frame.normal
@@ -461,7 +469,8 @@ class _Accumulator:
         from ..rendering import Frame
 
         inv = 1.0 / self.spp
-        m = {k: (v * inv).astype(np.float32) for k, v in self.sums.items()}
+        m = {k: np.multiply(v, inv, out=np.empty(v.shape, np.float32), casting="same_kind")
+             for k, v in self.sums.items()}  # new arrays: frames already shown keep theirs
         stats = dict(last.stats, spp=self.spp)
         out = Frame(m["color"], self.depth, self.normal, m["alpha"], stats, self.camera,
                     albedo=m.get("albedo"), object_alpha=m.get("object_alpha"),

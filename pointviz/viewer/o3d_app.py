@@ -378,7 +378,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.preview.setup_camera(float(fov), bbox, camera.target.astype(np.float32))
         self.preview.look_at(camera.target.astype(np.float32), camera.eye.astype(np.float32),
                              camera.true_up.astype(np.float32))
-        self._update_point_size(force=True)
+        if self.live is None:  # live: the splats are hidden (set_live(False) sizes them)
+            self._update_point_size(force=True)
 
     def _update_point_size(self, force=False) -> None:
         cam = self.preview.scene.camera
@@ -449,8 +450,12 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         view = np.asarray(self.preview.scene.camera.get_view_matrix())
         if self._last_view is None or not np.allclose(view, self._last_view):
             self._last_view = view
-            self._update_point_size()
-            redraw = True
+            # live: the splats are hidden and the viewport shows the traced picture, which only
+            # changes when a frame arrives (that redraws); a redraw per camera tick would cost
+            # the software rasteriser's CPU for an unchanged picture
+            if self.live is None:
+                self._update_point_size()
+                redraw = True
         if self.playing is not None:
             redraw |= self._advance_path(now)
         if self.automation is not None:

@@ -48,6 +48,7 @@ class LiveScript:
     moving_shown: list = field(default_factory=list)   # (time, fraction) of moving frames shown
     still_spp: int = 0
     still_generation: int = -1
+    still_shown: list = field(default_factory=list)    # (seconds into the hold, spp) shown
 
 
 class LiveMixin:
@@ -59,6 +60,7 @@ class LiveMixin:
         self.live_generation = 0  # the request the GUI last made
         self.live_stats = {"frames_shown": 0, "moving_frames_shown": 0, "errors": []}
         self.live_script = None
+        self._live_key = None     # what the last camera handed to the live renderer came from
 
     def _build_live_widgets(self, parent) -> None:
         cb = self.gui.Checkbox("Live ray tracing (L)")
@@ -72,6 +74,7 @@ class LiveMixin:
         """Switch between the live ray-traced viewport and the splat preview."""
         if on == (self.live is not None):
             return
+        self._live_key = None  # a new renderer gets the camera at the next tick
         sc = self.preview.scene
         if on:
             self.live = LiveRenderer(self._post_live_frame, self._live_prepare,
@@ -87,6 +90,7 @@ class LiveMixin:
             sc.set_background(list(self._background_color()), None)
             self.preview.enable_scene_caching(True)
             self.live_label.text = "live: off (splat preview)"
+            self._update_point_size(force=True)  # not kept up while the splats were hidden
         self._show_splats(not on)
         self.preview.force_redraw()
         self.chk_live.checked = on  # last: a callback it may fire finds the state already set
@@ -105,7 +109,16 @@ class LiveMixin:
         return model.render_scene(self.scene, settings), settings.render_kwargs()
 
     def _live_tick(self) -> None:
-        if self.live is not None:
+        """Hand the current camera to the live renderer (every tick; the camera is only rebuilt
+        when the preview's view, its size or the settings have changed since the last one)."""
+        if self.live is None:
+            return
+        cam, frame = self.preview.scene.camera, self.preview.frame
+        key = (np.asarray(cam.get_view_matrix()).tobytes(),
+               np.asarray(cam.get_projection_matrix()).tobytes(), frame.width, frame.height,
+               id(self.settings))
+        if key != self._live_key:
+            self._live_key = key
             self.live_generation = self.live.update(self.current_camera(), self.settings)
 
     # -- worker thread -> GUI thread
@@ -138,6 +151,7 @@ class LiveMixin:
             s.moving_shown.append((time.monotonic(), lf.fraction))
         if s is not None and s.state == "hold" and lf.generation == s.still_generation:
             s.still_spp = 0 if lf.moving else lf.spp
+            s.still_shown.append((round(time.monotonic() - s.t_state, 3), s.still_spp))
 
     def _show_live_error(self, exc) -> None:
         self.live_stats["errors"].append(f"{type(exc).__name__}: {exc}")
@@ -209,6 +223,7 @@ class LiveMixin:
             "live_fps": len(shown) / orbit_s if orbit_s else None,
             "live_resolution": float(np.mean([f for _, f in shown])) if shown else None,
             "still_spp": s.still_spp,
+            "still_shown": s.still_shown,
             "hold_seconds": HOLD_S,
             "preview_fps": (s.preview_ticks / s.preview_seconds
                             if getattr(s, "preview_seconds", 0) else None),
