@@ -390,7 +390,10 @@ def test_live_orbit_reports_and_its_still_frame_matches_a_direct_render(tmp_path
     resized = expected[rows][:, cols]
     diff = np.abs(panel - resized).mean()
     # the picture shown may be a few passes older than the saved one: a looser bound
-    assert diff < 2 * SCREENSHOT_TOLERANCE, f"viewport differs from the live frame: {diff:.1f}"
+    assert diff < 2 * SCREENSHOT_TOLERANCE, (
+        f"viewport differs from the live frame: {diff:.1f} (the window measured "
+        f"{report['automation'].get('live_view_difference')} after "
+        f"{report['automation'].get('attempts')} grabs)")
     assert np.abs(panel - resized[::-1]).mean() > diff + 5
 
 
@@ -455,3 +458,22 @@ def test_view_cli_rejects_bad_live_options(argv, message):
                          check=False, capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
     assert out.returncode != 0
     assert message in out.stderr and "Traceback" not in out.stderr
+
+
+def test_live_view_difference_sees_through_the_upscale_and_not_past_another_picture():
+    """The automation's check that the grabbed viewport shows the live frame: an image upscaled
+    by nearest neighbour (a non-integer factor) measures 0, one with a smooth filter stays small,
+    and a different picture (the image flipped) measures far more."""
+    from pointviz.viewer.o3d_automation import live_view_difference
+
+    rng = np.random.default_rng(5)
+    image = (rng.random((18, 24, 1)) * 255 * np.ones((1, 1, 3))).astype(np.uint8)
+    rows = np.minimum((np.arange(50) * 18 / 50).astype(int), 17)
+    cols = np.minimum((np.arange(70) * 24 / 70).astype(int), 23)
+    panel = image[rows][:, cols]
+    assert live_view_difference(panel, image) == 0.0
+    smooth = panel.astype(np.float64)
+    smooth[1:-1] = (smooth[:-2] + smooth[1:-1] + smooth[2:]) / 3
+    assert live_view_difference(smooth, image) < 0.5 * live_view_difference(panel, image[::-1])
+    assert live_view_difference(panel, image[::-1]) > 50
+    assert live_view_difference(panel[:0], image) == float("inf")

@@ -23,6 +23,12 @@ AUTOMATION_SETTLE_S = 0.5
 SCREENSHOT_ATTEMPTS = 60
 #: A grab whose pixel standard deviation is at most this is blank (nothing presented yet).
 BLANK_STD = 1.0
+#: Live view: a grab whose viewport differs from the live frame last handed to the window by more
+#: than this mean absolute difference (8-bit levels, see live_view_difference) still shows an
+#: older picture: under load the X server presents a redraw seconds late. The frame shown is
+#: ~10 levels off its image (the window's display of a scene background); a picture from the
+#: orbit, another camera, is ~40 off.
+LIVE_SHOWN_TOLERANCE = 20.0
 
 
 @dataclass
@@ -116,10 +122,18 @@ class AutomationMixin:
             self._finish_automation(shot)
 
     def _shows_blank(self, shot) -> bool:
-        """True while the grab shows a blank window, or a blank frame panel although a frame
-        is shown there (under load the redraw with the new image reaches the X server late)."""
+        """True while the grab shows a blank window, a blank frame panel although a frame is
+        shown there, or a live viewport still showing an older picture than the live frame the
+        window was given (under load the redraw with the new image reaches the X server late)."""
         if shot.std() <= BLANK_STD:
             return True
+        if self.live_frame is not None and self.live is not None:
+            x, y, w, h = self.widget_rects()["preview"]
+            diff = live_view_difference(shot[y:y + h, x:x + w], self.live_frame.image)
+            if self.automation is not None:
+                self.automation.info["live_view_difference"] = round(diff, 2)
+            if diff > LIVE_SHOWN_TOLERANCE:
+                return True
         if self.frame is None or not self.result.visible:
             return False
         x, y, w, h = self.widget_rects()["result"]
@@ -226,6 +240,29 @@ class AutomationMixin:
 
 
 
+def live_view_difference(panel: np.ndarray, image: np.ndarray) -> float:
+    """Mean absolute difference (8-bit levels) between a live frame's ``image`` (ih, iw, 3) and
+    a grabbed viewport ``panel`` (h, w, 3) that shows it upscaled: the panel's pixels are averaged
+    over each image pixel's cell first, so that how the window filters the upscale (nearest or
+    linear) hardly counts and an older picture stands out. inf if either is empty."""
+    h, w = panel.shape[:2]
+    ih, iw = image.shape[:2]
+    if min(h, w, ih, iw) == 0:
+        return float("inf")
+    rows = np.minimum((np.arange(h) * ih / h).astype(np.int64), ih - 1)
+    cols = np.minimum((np.arange(w) * iw / w).astype(np.int64), iw - 1)
+    cell = (rows[:, None] * iw + cols[None, :]).ravel()
+    count = np.bincount(cell, minlength=ih * iw)
+    seen = count > 0
+    diff = 0.0
+    for c in range(3):
+        sums = np.bincount(cell, weights=panel[..., c].ravel().astype(np.float64),
+                           minlength=ih * iw)
+        mean = sums[seen] / count[seen]
+        diff += np.abs(mean - image[..., c].ravel()[seen].astype(np.float64)).sum()
+    return float(diff / (3 * seen.sum()))
+
+
 def save_frame_npz(path, frame, camera, overwrite=False, **fields) -> None:
     """Frame buffers and camera JSON in one ``.npz`` (tests compare it with a direct render);
     ``fields`` are more arrays to store."""
@@ -243,4 +280,4 @@ def save_frame_npz(path, frame, camera, overwrite=False, **fields) -> None:
 
 
 
-__all__ = ["Automation", "AutomationMixin", "grab_window", "save_frame_npz"]
+__all__ = ["Automation", "AutomationMixin", "grab_window", "live_view_difference", "save_frame_npz"]
