@@ -133,9 +133,8 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
 std::vector<float> radii_points(const PointsView &in, const float *normals, uint32_t k,
                                 const CoverOptions &opt, Progress &progress) {
     Spatial sp(in, opt.threads, progress);
-    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, opt.threads, &progress);
     std::vector<float> nrm = sp.to_tree(normals, 3);
-    return sp.to_input(coverage_radii(sp.view.points, nrm.data(), t, opt, &progress));
+    return sp.to_input(coverage_radii(sp.view.points, nrm.data(), sp.tree, k, opt, &progress));
 }
 
 StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &opt,
