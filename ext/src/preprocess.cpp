@@ -32,7 +32,7 @@ namespace {
 /// anywhere in the input (2x faster on scans stored scan by scan).
 struct Spatial {
     std::vector<uint32_t> perm;          ///< perm[r]: input index of the point stored at r
-    std::vector<double> points, viewpoints;
+    std::vector<double> viewpoints;
     std::vector<int32_t> group;
     PointsView view;
     KnnTree tree;
@@ -40,10 +40,9 @@ struct Spatial {
     Spatial(const PointsView &in, int threads, Progress &progress)
         : tree(in.points, in.n, threads, &progress) {
         perm = tree.order();
-        points = tree.stored_points();
         tree.renumber_in_tree_order();
         view = in;
-        view.points = points.data();
+        view.points = tree.stored_points().data();  // the tree's own copy, in its order
         if (in.viewpoints && in.n_viewpoints == in.n && in.n > 1) {
             viewpoints.resize(3 * in.n);
             for (size_t r = 0; r < in.n; ++r)
@@ -133,9 +132,8 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
 std::vector<float> radii_points(const PointsView &in, const float *normals, uint32_t k,
                                 const CoverOptions &opt, Progress &progress) {
     Spatial sp(in, opt.threads, progress);
-    NeighbourTable t = knn_all(sp.tree, sp.view.points, k, opt.threads, &progress);
     std::vector<float> nrm = sp.to_tree(normals, 3);
-    return sp.to_input(coverage_radii(sp.view.points, nrm.data(), t, opt, &progress));
+    return sp.to_input(coverage_radii(sp.view.points, nrm.data(), sp.tree, k, opt, &progress));
 }
 
 StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &opt,

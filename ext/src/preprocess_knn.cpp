@@ -297,8 +297,19 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
     t.n = tree.size();
     t.k = t.n == 0 ? 0 : uint32_t(std::min<size_t>(k, t.n - 1));
     t.index.assign(t.n * t.k, 0);
-    if (t.k == 0) return t;
-    if (progress) progress->total.fetch_add(t.n, std::memory_order_relaxed);
+    knn_each(tree, points, t.k, true, threads, progress, [&t](uint32_t i, const uint32_t *row) {
+        std::copy(row, row + t.k, t.index.data() + size_t(i) * t.k);
+    });
+    return t;
+}
+
+void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool sorted,
+              int threads, Progress *progress,
+              const std::function<void(uint32_t, const uint32_t *)> &visit) {
+    const size_t n = tree.size();
+    const uint32_t k = n == 0 ? 0 : uint32_t(std::min<size_t>(k_wanted, n - 1));
+    if (k == 0) return;
+    if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     const std::vector<uint32_t> &ids = tree.ids_;
     const std::vector<double> &pts = tree.pts_, &box = tree.box_;
     const std::vector<uint32_t> first = tree.leaf_ranges();
@@ -321,8 +332,8 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
     // ~2 ms of queries per chunk at k = 32: the cancel flag is seen promptly
     constexpr size_t kGrainLeaves = 2048 / KnnTree::kLeafSize;
     parallel_for(leaves, kGrainLeaves, threads, [&](size_t lb, size_t le, int) {
-        std::vector<double> d2(t.k);
-        std::vector<uint32_t> cand;
+        std::vector<double> d2(k);
+        std::vector<uint32_t> row(k), cand;
         std::vector<Candidate> near;
         double r2 = -1;  // no radius yet
         const double *prev = nullptr;
@@ -339,7 +350,6 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
             for (uint32_t r = first[l]; r < first[l + 1]; ++r) {
                 const double *q = &pts[3 * size_t(r)];
                 uint32_t self = ids[r];
-                uint32_t *row = t.index.data() + size_t(self) * t.k;
                 size_t cnt = 0;
                 double rq = r2;
                 if (prev) {
@@ -359,15 +369,17 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
                             cnt += (d <= rq) & (ids[s] != self);
                         }
                     }
-                if (r2 >= 0 && cnt >= t.k) {
-                    std::nth_element(near.begin(), near.begin() + (t.k - 1), near.begin() + cnt);
-                    std::sort(near.begin(), near.begin() + (t.k - 1));
-                    for (uint32_t m = 0; m < t.k; ++m) row[m] = candidate_id(near[m]);
-                    prev_kth = candidate_d2(near[t.k - 1]);
+                if (r2 >= 0 && cnt >= k) {
+                    std::nth_element(near.begin(), near.begin() + (k - 1), near.begin() + cnt);
+                    if (sorted) std::sort(near.begin(), near.begin() + (k - 1));
+                    for (uint32_t m = 0; m < k; ++m) row[m] = candidate_id(near[m]);
+                    prev_kth = candidate_d2(near[k - 1]);
                 } else {
-                    tree.query_near(points + 3 * size_t(self), r, t.k, self, row, d2.data());
-                    prev_kth = d2[t.k - 1];
+                    tree.query_near(points + 3 * size_t(self), r, k, self, row.data(),
+                                    d2.data());
+                    prev_kth = d2[k - 1];
                 }
+                visit(self, row.data());
                 kth = std::max(kth, prev_kth);
                 prev = q;
             }
@@ -376,7 +388,6 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
         if (progress) progress->advance(first[le] - first[lb]);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    return t;
 }
 
 }  // namespace pointviz

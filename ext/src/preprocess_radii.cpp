@@ -34,6 +34,91 @@ double quantile(std::vector<float> v, double q) {
     return a + (pos - double(lo)) * (b - a);
 }
 
+/// The sampled directions of a cell, in float: the cell along each is a min over neighbours of
+/// one division, which runs 4 directions at a time. Padded to whole SIMD lanes with proj = 0
+/// directions, which never get a bisector.
+struct Directions {
+    uint32_t nd = 0, nd_lanes = 0;
+    alignas(32) float cs[kMaxDirections] = {}, sn[kMaxDirections] = {};
+    explicit Directions(uint32_t wanted) {
+        nd = std::min<uint32_t>(std::max<uint32_t>(wanted, 3), kMaxDirections);
+        nd_lanes = (nd + kLanes - 1) / kLanes * kLanes;
+        for (uint32_t a = 0; a < nd; ++a) {
+            double t = 2.0 * M_PI * a / nd;
+            cs[a] = float(std::cos(t));
+            sn[a] = float(std::sin(t));
+        }
+    }
+};
+
+/// The radius of point i from its k neighbours `row` (in any order: the cell is a min over
+/// them, the cap a max, the fallback a min).
+float cell_radius(const double *points, const float *normals, size_t i, const uint32_t *row,
+                  uint32_t k, const Directions &dir, const CoverOptions &opt) {
+    alignas(32) float edge[kMaxDirections];
+    const float *cs = dir.cs, *sn = dir.sn;
+    const uint32_t nd = dir.nd, nd_lanes = dir.nd_lanes;
+    const double *p = points + 3 * i;
+    double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
+    double l = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
+    for (int a = 0; a < 3; ++a) nn[a] /= l;
+    tangent_basis(nn, t1, t2);
+    const float inf = std::numeric_limits<float>::infinity();
+    double d1 = inf, dk = 0;
+    for (uint32_t a = 0; a < nd_lanes; ++a) edge[a] = inf;
+    // along each direction the cell ends at the nearest perpendicular bisector
+    for (uint32_t m = 0; m < k; ++m) {
+        const double *q = points + 3 * size_t(row[m]);
+        double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
+        float x = float(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]);
+        float y = float(d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]);
+        float r2 = x * x + y * y;
+        double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        d1 = std::min(d1, dist);
+        dk = std::max(dk, dist);
+        if (!(r2 > 0.f)) continue;
+        float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
+        // four directions at a time over whole lanes (the padding directions have
+        // proj = 0: never a bisector); every lane rounds as the scalar loop does
+#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
+        const __m128 vx = _mm_set1_ps(x), vy = _mm_set1_ps(y), vr2 = _mm_set1_ps(r2),
+                     vfloor = _mm_set1_ps(floor_), vinf = _mm_set1_ps(inf);
+        for (uint32_t a = 0; a < nd_lanes; a += 4) {
+            __m128 proj = _mm_add_ps(_mm_mul_ps(vx, _mm_load_ps(cs + a)),
+                                     _mm_mul_ps(vy, _mm_load_ps(sn + a)));
+            __m128 s = _mm_div_ps(vr2, _mm_add_ps(proj, proj));
+            __m128 ok = _mm_cmpgt_ps(proj, vfloor);
+            s = _mm_or_ps(_mm_and_ps(ok, s), _mm_andnot_ps(ok, vinf));
+            _mm_store_ps(edge + a, _mm_min_ps(s, _mm_load_ps(edge + a)));
+        }
+#else
+        for (uint32_t a = 0; a < nd_lanes; ++a) {
+            float proj = x * cs[a] + y * sn[a];
+            float s = proj > floor_ ? r2 / (2.f * proj) : inf;
+            edge[a] = std::min(edge[a], s);
+        }
+#endif
+    }
+    double cell = 0.0;
+    for (uint32_t a = 0; a < nd; ++a)
+        if (edge[a] < inf) cell = std::max(cell, double(edge[a]));
+    double r = std::min(opt.margin * cell, opt.cap * dk);
+    // isolated or degenerate (no bisector anywhere): from the neighbour distances
+    if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);
+    float rf = float(r);
+    // rounding to float must not turn a tiny positive radius into 0
+    return r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
+}
+
+/// Caps `out` at opt.global_cap x its 99th percentile (clouds of at least 100 points).
+void apply_global_cap(std::vector<float> &out, const CoverOptions &opt) {
+    constexpr size_t kMinForQuantile = 100;  // too few points for a meaningful percentile
+    if (out.size() < kMinForQuantile) return;
+    float cap = float(opt.global_cap * quantile(out, 0.99));
+    if (cap > 0)
+        for (float &r : out) r = std::min(r, cap);
+}
+
 }  // namespace
 
 std::vector<float> coverage_radii(const double *points, const float *normals,
@@ -43,86 +128,32 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     uint32_t k = nb.k;
     std::vector<float> out(n, 0.f);
     if (n == 0 || k == 0) return out;
-    uint32_t nd = std::min<uint32_t>(std::max<uint32_t>(opt.directions, 3), kMaxDirections);
-    // directions in float: the cell of each is a min over neighbours of one division, which the
-    // compiler runs 8 directions at a time
-    // padded to whole SIMD lanes with proj = 0 directions, which never get a bisector
-    const uint32_t nd_lanes = (nd + kLanes - 1) / kLanes * kLanes;
-    alignas(32) float cs[kMaxDirections] = {}, sn[kMaxDirections] = {};
-    for (uint32_t a = 0; a < nd; ++a) {
-        double t = 2.0 * M_PI * a / nd;
-        cs[a] = float(std::cos(t));
-        sn[a] = float(std::sin(t));
-    }
+    const Directions dir(opt.directions);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 4096;
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        alignas(32) float edge[kMaxDirections];
-        for (size_t i = b; i < e; ++i) {
-            const double *p = points + 3 * i;
-            double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
-            double l = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
-            for (int a = 0; a < 3; ++a) nn[a] /= l;
-            tangent_basis(nn, t1, t2);
-            const uint32_t *row = nb.row(i);
-            double d1 = 0, dk = 0;
-            const float inf = std::numeric_limits<float>::infinity();
-            for (uint32_t a = 0; a < nd_lanes; ++a) edge[a] = inf;
-            // along each direction the cell ends at the nearest perpendicular bisector
-            for (uint32_t m = 0; m < k; ++m) {
-                const double *q = points + 3 * size_t(row[m]);
-                double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
-                float x = float(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]);
-                float y = float(d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]);
-                float r2 = x * x + y * y;
-                double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-                if (m == 0) d1 = dist;
-                dk = std::max(dk, dist);
-                if (!(r2 > 0.f)) continue;
-                float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
-                // four directions at a time over whole lanes (the padding directions have
-                // proj = 0: never a bisector); every lane rounds as the scalar loop does
-#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
-                const __m128 vx = _mm_set1_ps(x), vy = _mm_set1_ps(y), vr2 = _mm_set1_ps(r2),
-                             vfloor = _mm_set1_ps(floor_), vinf = _mm_set1_ps(inf);
-                for (uint32_t a = 0; a < nd_lanes; a += 4) {
-                    __m128 proj = _mm_add_ps(_mm_mul_ps(vx, _mm_load_ps(cs + a)),
-                                             _mm_mul_ps(vy, _mm_load_ps(sn + a)));
-                    __m128 s = _mm_div_ps(vr2, _mm_add_ps(proj, proj));
-                    __m128 ok = _mm_cmpgt_ps(proj, vfloor);
-                    s = _mm_or_ps(_mm_and_ps(ok, s), _mm_andnot_ps(ok, vinf));
-                    _mm_store_ps(edge + a, _mm_min_ps(s, _mm_load_ps(edge + a)));
-                }
-#else
-                for (uint32_t a = 0; a < nd_lanes; ++a) {
-                    float proj = x * cs[a] + y * sn[a];
-                    float s = proj > floor_ ? r2 / (2.f * proj) : inf;
-                    edge[a] = std::min(edge[a], s);
-                }
-#endif
-            }
-            double cell = 0.0;
-            for (uint32_t a = 0; a < nd; ++a)
-                if (edge[a] < inf) cell = std::max(cell, double(edge[a]));
-            double r = std::min(opt.margin * cell, opt.cap * dk);
-            // isolated or degenerate (no bisector anywhere): from the neighbour distances
-            if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);
-            float rf = float(r);
-            // rounding to float must not turn a tiny positive radius into 0
-            out[i] = r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
-        }
+        for (size_t i = b; i < e; ++i)
+            out[i] = cell_radius(points, normals, i, nb.row(i), k, dir, opt);
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    constexpr size_t kMinForQuantile = 100;  // too few points for a meaningful percentile
-    if (n >= kMinForQuantile) {
-        std::vector<float> pos;
-        pos.reserve(n);
-        for (float r : out) pos.push_back(r);
-        float cap = float(opt.global_cap * quantile(std::move(pos), 0.99));
-        if (cap > 0)
-            for (float &r : out) r = std::min(r, cap);
-    }
+    apply_global_cap(out, opt);
+    return out;
+}
+
+std::vector<float> coverage_radii(const double *points, const float *normals,
+                                  const KnnTree &tree, uint32_t k, const CoverOptions &opt,
+                                  Progress *progress) {
+    size_t n = tree.size();
+    std::vector<float> out(n, 0.f);
+    if (n < 2 || k == 0) return out;
+    k = uint32_t(std::min<size_t>(k, n - 1));
+    const Directions dir(opt.directions);
+    knn_each(tree, points, k, false, opt.threads, progress,
+             [&](uint32_t i, const uint32_t *row) {
+                 out[i] = cell_radius(points, normals, i, row, k, dir, opt);
+             });
+    apply_global_cap(out, opt);
     return out;
 }
 

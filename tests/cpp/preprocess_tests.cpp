@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <random>
@@ -68,6 +69,40 @@ void test_knn_matches_brute_force() {
                 bad += !std::equal(want.begin(), want.end(), t.row(i));
             }
             CHECK(bad == 0, "seed %u k %u: %zu rows differ from brute force", seed, k, bad);
+        }
+    }
+}
+
+/// knn_each unsorted: each row holds brute force's neighbours (as a set); and the radii measured
+/// from it as the neighbours are found are the radii of the stored table, bit for bit.
+void test_unsorted_rows_and_fused_radii() {
+    std::vector<double> p = sphere_points(900, 5, 0.02);
+    for (int c = 0; c < 12; ++c) p.insert(p.end(), p.begin(), p.begin() + 3);  // duplicates
+    size_t n = p.size() / 3;
+    std::vector<float> nrm(3 * n);
+    for (size_t i = 0; i < 3 * n; ++i) nrm[i] = float(p[i]);
+    KnnTree tree(p.data(), n, 2);
+    for (uint32_t k : {1u, 10u, 33u}) {
+        std::vector<std::vector<uint32_t>> rows(n);
+        knn_each(tree, p.data(), k, false, 3, nullptr, [&](uint32_t i, const uint32_t *row) {
+            rows[i].assign(row, row + k);
+        });
+        size_t bad = 0;
+        for (size_t i = 0; i < n; ++i) {
+            std::vector<uint32_t> want = brute_row(p, i, k), got = rows[i];
+            std::sort(want.begin(), want.end());
+            std::sort(got.begin(), got.end());
+            bad += want != got;
+        }
+        CHECK(bad == 0, "k %u: %zu unsorted rows differ from brute force's sets", k, bad);
+        CoverOptions co;
+        for (int threads : {1, 3}) {
+            co.threads = threads;
+            NeighbourTable t = knn_all(tree, p.data(), k, threads);
+            std::vector<float> want = coverage_radii(p.data(), nrm.data(), t, co);
+            std::vector<float> got = coverage_radii(p.data(), nrm.data(), tree, k, co);
+            CHECK(got.size() == n && std::memcmp(got.data(), want.data(), 4 * n) == 0,
+                  "k %u, %d threads: the fused radii differ from the table's", k, threads);
         }
     }
 }
@@ -301,6 +336,7 @@ void test_radii_match_the_scalar_formula() {
 
 int main() {
     test_knn_matches_brute_force();
+    test_unsorted_rows_and_fused_radii();
     test_knn_within_groups_matches_brute_force();
     test_tiny_clouds();
     test_identical_for_any_thread_count();

@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "pointviz/progress.h"
@@ -48,7 +49,8 @@ public:
     void renumber_in_tree_order();
 
 private:
-    friend NeighbourTable knn_all(const KnnTree &, const double *, uint32_t, int, Progress *);
+    friend void knn_each(const KnnTree &, const double *, uint32_t, bool, int, Progress *,
+                         const std::function<void(uint32_t, const uint32_t *)> &);
     /// first[l], first[l + 1]: the stored positions of leaf l (leaves numbered left to right).
     std::vector<uint32_t> leaf_ranges() const;
     /// Appends the leaves whose box lies within squared distance r2 of the box `b` (lo, hi).
@@ -80,5 +82,13 @@ struct NeighbourTable {
 /// workers. Polls `progress` (advancing it by the points done); throws Cancelled.
 NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
                        Progress *progress = nullptr);
+
+/// The rows of knn_all (k is min(k, n - 1) as there) handed to `visit(i, row)` one point at a
+/// time instead of stored: a step that needs each point's neighbours once never holds the
+/// (n, k) table. `sorted` false: each row holds the same neighbours in no particular order
+/// (the selection skips its final sort). Calls come from `threads` workers at once, each point
+/// once; `row` is valid during the call only. Polls `progress`; throws Cancelled.
+void knn_each(const KnnTree &tree, const double *points, uint32_t k, bool sorted, int threads,
+              Progress *progress, const std::function<void(uint32_t, const uint32_t *)> &visit);
 
 }  // namespace pointviz

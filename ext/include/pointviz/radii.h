@@ -36,4 +36,11 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
                                   const NeighbourTable &nb, const CoverOptions &opt,
                                   Progress *progress = nullptr);
 
+/// The same radii with the `k` nearest neighbours (k <= n - 1) searched on `tree` (built on
+/// `points`, answering with their indices) point by point as each radius is measured: the
+/// neighbour table is never stored.
+std::vector<float> coverage_radii(const double *points, const float *normals,
+                                  const KnnTree &tree, uint32_t k, const CoverOptions &opt,
+                                  Progress *progress = nullptr);
+
 }  // namespace pointviz
