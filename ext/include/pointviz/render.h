@@ -134,8 +134,10 @@ struct FrameBuffers {
     std::vector<float> object_alpha;   ///< (h, w) fraction of samples that hit an object (not the ground)
 };
 
-/// Where a render's time went, summed over the workers: nanoseconds of each worker's CPU time,
-/// read a few times per tile when RenderSettings::phase_times asks for it (0 otherwise). `primary` and `reflection`: closest-hit queries of
+/// Where a render's time went, summed over the workers: nanoseconds of each worker's CPU time
+/// when RenderSettings::phase_times asks for it (0 otherwise): each phase timed on the monotonic
+/// clock, scaled per tile by the worker's CPU time over its elapsed time (one CPU-clock read,
+/// a system call, per tile). `primary` and `reflection`: closest-hit queries of
 /// the objects and the ground; `shadow`: shadow and sky-visibility rays against the objects and
 /// the ground; `shading`: everything else a bounce does (materials, lights, sampling the
 /// secondary rays); `tile`: a tile's setup (camera rays) and output.
