@@ -421,7 +421,10 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     reweighted against outliers; the point moves onto it and takes its normal. ``passes`` fits
     run in turn, each on the previous one's output; the last fits a height field
     ``z = a + b x + c y + d x^2 + e xy + f y^2`` (``quadric=False``: a plane again), which does
-    not pull curved parts inward. Then, visiting the points seen most head-on first (by their
+    not pull curved parts inward; it also gives back the pull of the plane passes before it
+    (each plane lies on the concave side of a curved neighbourhood by its fit of the quadric's
+    second-order part, averaged over the point's neighbours), so that the fitted surface lies
+    where the points do, on average, not inside convex parts. Then, visiting the points seen most head-on first (by their
     viewpoints), a point is dropped when a kept point lies within ``thin`` x its spacing in its
     own scan: where scans overlap about one layer remains, a single scan keeps all its points.
     With ``strays``, the points of stray clusters (see :func:`stray_clusters`) are not kept

@@ -129,3 +129,55 @@ def test_fitted_surfels_of_noisy_scans_miss_only_a_rim_thinner_than_the_noise():
         hit = surfel_hits(fitted.points, fitted.normals, fitted.radii, cam)
         missed = (depth > 0) & ~hit
         assert not np.any(missed & (depth > sigma)), depth[missed].max()
+
+
+#: Draws of the scans' noise and misregistration for the tests over draws: one draw moves the
+#: whole scanned surface by a fraction of a pixel (its raw points' mean signed distance to the
+#: torus ranges over +-0.3e-3 from seed to seed), which decides the holes on the outline's rim.
+SEEDS = (1, 2, 3, 4)
+NOISES = (0.001, 0.004)
+
+
+@functools.lru_cache(maxsize=None)
+def fitted_scans(noise: float, seed: int):
+    """(raw cloud, fitted cloud) of 8 noisy, misregistered scans of the exact torus."""
+    cloud, _ = virtual_scans("torus", scans=8, resolution=120, noise=noise,
+                             misregistration=0.0005, seed=seed)
+    return cloud, cloud.fitted()
+
+
+@pytest.mark.parametrize("noise", NOISES)
+def test_surface_fit_lies_where_the_scans_do_over_draws(noise):
+    """The fit is unbiased: averaged over draws, the fitted surfels' mean signed distance to the
+    exact torus is the raw points' own. The fit's plane passes pull curved parts inward: without
+    the pull given back, the fitted surfels of these draws lie 0.95e-3 / 1.03e-3 inside the raw
+    points (0.1 % / 0.4 % noise; 0.36e-3 / 0.42e-3 on the denser 200 x 200 scans of
+    benchmarks/holes_over_seeds.py), a tenth of a pixel of the frames below; with it, 0.006e-3
+    / 0.065e-3. Bound: 0.12e-3."""
+    diffs = []
+    for seed in SEEDS:
+        raw, fitted = fitted_scans(noise, seed)
+        diffs.append(TORUS.signed_distance(fitted.points).mean()
+                     - TORUS.signed_distance(raw.points).mean())
+    assert abs(np.mean(diffs)) < 1.2e-4, diffs
+
+
+@pytest.mark.parametrize("noise", NOISES)
+def test_fitted_surfels_rim_holes_over_draws(noise):
+    """Surfels fitted to noisy, misregistered scans, over several draws: no pixel the exact
+    torus covers by more than the depth noise is missed (no hole inside the silhouette), and
+    the rim pixels missed along the outline stay below a bound. Measured (these 4 draws, 3
+    views of 200 x 150): 0.068 % / 0.082 % of the torus's pixels (0.1 % / 0.4 % noise) with
+    the fit's pull given back, 0.21 % / 0.21 % without; bound 0.10 %."""
+    sigma = noise * TORUS.size
+    missed_total, inside_total = 0, 0
+    for seed in SEEDS:
+        _, fitted = fitted_scans(noise, seed)
+        for view, cam in enumerate(cameras()):
+            depth = penetration(view)
+            hit = surfel_hits(fitted.points, fitted.normals, fitted.radii, cam)
+            missed = (depth > 0) & ~hit
+            assert not np.any(missed & (depth > sigma)), (seed, view, depth[missed].max())
+            missed_total += int(missed.sum())
+            inside_total += int((depth > 0).sum())
+    assert missed_total / inside_total < 0.001, missed_total / inside_total

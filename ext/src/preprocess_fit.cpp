@@ -19,6 +19,10 @@ constexpr double kFitReach = 1.5;
 /// take no part in its fit: the two sides of a claw 1 mm thick are within one neighbourhood of
 /// the dragon's scans, and their normals point apart.
 constexpr double kSameSideCos = 0.0;
+/// The plane passes' pull (below) is averaged over this many of each point's neighbours, the
+/// nearest first: it varies with the curvature, slowly, while each point's own estimate carries
+/// the noise of its quadric's second-order terms.
+constexpr uint32_t kPullSupport = 32;
 /// Largest number of unknowns of a fit.
 constexpr int kMaxTerms = 6;
 /// A Cholesky pivot below this fraction of the matrix's largest diagonal entry means the
@@ -108,10 +112,11 @@ double dist2(const double *a, const double *b) {
 /// Scratch space of one worker, grown to the largest neighbourhood it fits.
 struct FitScratch {
     std::vector<FitRows> rows;
+    std::vector<FitRows> pull_rows;
     std::vector<double> ws, w, res;
     void reserve(uint32_t k) {
         if (rows.size() >= k) return;
-        rows.resize(k), ws.resize(k), w.resize(k), res.resize(k);
+        rows.resize(k), pull_rows.resize(k), ws.resize(k), w.resize(k), res.resize(k);
     }
 };
 
@@ -139,11 +144,12 @@ void reweight(const FitRows *rows, const double *ws, double *w, double *res, uin
 }
 
 /// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
-/// writes the projected position and the fit's normal. False: the fit failed or asked for a
-/// move beyond the neighbourhood.
+/// writes the projected position and the fit's normal. With `out_pull` and a quadric fit, also
+/// the pull of one plane fit of this neighbourhood (below; left as it was otherwise). False:
+/// the fit failed or asked for a move beyond the neighbourhood.
 bool fit_point(const double *points, const float *normals, size_t i, const uint32_t *row,
                uint32_t k, const FitOptions &opt, bool quadric, FitScratch &s, double *out_p,
-               float *out_n) {
+               float *out_n, double *out_pull) {
     const double *p = points + 3 * i;
     double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
     if (!(h2 > 0)) return false;
@@ -180,6 +186,19 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     }
     // the fit at the point's own tangential position: height a, slopes (b, c)
     if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) return false;
+    // A plane fitted to a curved neighbourhood lies below it (on the concave side) by its own
+    // fit of the quadratic part: curvature x support^2 / 4 on a sphere. The quadric has the
+    // surface's curvature, so that pull is the plane fit, with the same weights, of its
+    // quadratic terms alone: the height of that plane at the point.
+    if (out_pull && terms == kMaxTerms) {
+        FitRows *q = s.pull_rows.data();
+        for (uint32_t j = 0; j < k; ++j) {
+            q[j] = rows[j];
+            q[j].z = c[3] * rows[j].f[3] + c[4] * rows[j].f[4] + c[5] * rows[j].f[5];
+        }
+        double pc[3];
+        if (fit_terms<3>(q, w, k, pc)) *out_pull = pc[0] * h;
+    }
     double g[3];
     for (int a = 0; a < 3; ++a) g[a] = nn[a] - c[1] * t1[a] - c[2] * t2[a];
     double gl = std::sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
@@ -188,6 +207,47 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
         out_n[a] = float(g[a] / gl);
     }
     return true;
+}
+
+/// What the last pass did to a point, for giving back the plane passes' pull.
+enum LastFit : uint8_t { kNotMoved = 0, kMoved = 1, kPullEstimated = 2 };
+
+/// Moves each point of `res` that the last pass moved outward along its normal by
+/// `plane_passes` x the mean pull estimated at itself and its nearest neighbours (kPullSupport,
+/// those with an estimate and facing its way); no estimate among them: not moved.
+void give_back_pull(FitResult &res, const NeighbourTable &nb, const std::vector<double> &pull,
+                    const std::vector<uint8_t> &last, double plane_passes, int threads,
+                    Progress *progress) {
+    size_t n = nb.n;
+    std::vector<double> mean(n, 0.0);
+    parallel_for(n, 1024, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            if (last[i] == kNotMoved) continue;
+            const float *ni = &res.normals[3 * i];
+            const uint32_t *row = nb.row(i);
+            double sum = last[i] == kPullEstimated ? pull[i] : 0.0;
+            uint32_t cnt = last[i] == kPullEstimated ? 1 : 0;
+            for (uint32_t m = 0; m < std::min(nb.k, kPullSupport - 1); ++m) {
+                uint32_t j = row[m];
+                const float *nj = &res.normals[3 * size_t(j)];
+                if (last[j] != kPullEstimated ||
+                    ni[0] * nj[0] + ni[1] * nj[1] + ni[2] * nj[2] <= kSameSideCos)
+                    continue;
+                sum += pull[j];
+                ++cnt;
+            }
+            mean[i] = cnt ? sum / double(cnt) : 0.0;
+        }
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    parallel_for(n, 1024, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            const float *ni = &res.normals[3 * i];
+            for (int a = 0; a < 3; ++a)
+                res.points[3 * i + a] -= plane_passes * mean[i] * double(ni[a]);
+        }
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
 }
 
 }  // namespace
@@ -213,6 +273,11 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     std::vector<float> src_n;
     constexpr size_t kGrain = 1024;
     int passes = std::max(opt.passes, 1);
+    // the plane passes before a last quadric pass each pull the points toward the concave
+    // side; the quadric estimates that pull and it is given back after the last pass
+    const bool unpull = opt.quadric && passes > 1;
+    std::vector<double> pull(unpull ? n : 0, 0.0);
+    std::vector<uint8_t> last(unpull ? n : 0, kNotMoved);
     if (progress) progress->total.fetch_add(n * size_t(passes - 1), std::memory_order_relaxed);
     for (int pass = 0; pass < passes; ++pass) {
         const double *sp = points;
@@ -230,14 +295,19 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
                 uint32_t k = std::max<uint32_t>(support ? support[i] : opt.min_support,
                                                 opt.min_support);
                 k = std::min<uint32_t>(k, nb.k + 1);
+                double *out_pull = unpull && quadric ? &pull[i] : nullptr;
+                if (out_pull) *out_pull = std::nan("");
                 if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, scratch, &res.points[3 * i],
-                              &res.normals[3 * i]))
+                              &res.normals[3 * i], out_pull)) {
                     moved[i] |= 1;
+                    if (out_pull) last[i] = std::isfinite(*out_pull) ? kPullEstimated : kMoved;
+                }
             }
             if (progress) progress->advance(e - b);
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
+    if (unpull) give_back_pull(res, nb, pull, last, double(passes - 1), opt.threads, progress);
     res.unmoved = n - size_t(std::count(moved.begin(), moved.end(), uint8_t(1)));
     // how far each point moved; its spacing within its own scan (its nearest neighbour from the
     // same scan); how head-on its scanner saw it

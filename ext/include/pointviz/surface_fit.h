@@ -23,7 +23,11 @@ struct FitOptions {
     /// / 4, the quadric does not; but on raw points a quadric's normals are noisier (6
     /// unknowns), so it only fits points the planes have denoised. Measured on virtual scans
     /// of a torus at 0.1 % noise: mean distance to the surface 0.69e-3 (quadric last) vs
-    /// 0.90e-3 (planes only), normal error 0.58 vs 0.67 degrees.
+    /// 0.90e-3 (planes only), normal error 0.58 vs 0.67 degrees. The quadric pass also gives
+    /// back the planes' pull (each point's estimate, from the quadric's second-order part,
+    /// averaged over its neighbours): over 5 draws of those scans the fitted points' mean
+    /// signed distance to the torus went from 0.36e-3 / 0.42e-3 inside the raw points' to
+    /// 0.01e-3 / 0.06e-3 inside (0.1 % / 0.4 % noise).
     bool quadric = true;
     /// Reweighting passes after the first fit (Welsch weights on the residuals), so that a
     /// stray point or a misregistered layer pulls the fit less.
