@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <ctime>
 
 #include "pointviz/parallel.h"
@@ -28,7 +29,7 @@ constexpr float kBoundsMargin = 1e-4f;
 /// A sphere around what a ray can hit in one object.
 struct Reach {
     Vec3 c;
-    float r2 = 0.f;   ///< squared radius
+    float r = 0.f, r2 = 0.f;   ///< radius, squared radius
     bool known = false;   ///< false: unknown, every ray may hit
 };
 
@@ -118,9 +119,11 @@ inline float rand01(uint64_t seed, uint64_t pixel, uint32_t sample, uint32_t dim
     return float(z >> 40) * (1.f / 16777216.f);
 }
 
-/// Fractional part of a non-negative x: the same value as std::fmod(x, 1.0) (both are exact:
-/// x - floor(x) subtracts an integer that shares x's exponent range), without a library call.
-inline double frac(double x) { return x - std::floor(x); }
+/// Fractional part of a non-negative x below 2^63: the same value as std::fmod(x, 1.0) (both
+/// are exact: x - floor(x) subtracts an integer that shares x's exponent range), without a
+/// library call (truncation is floor for x >= 0; the baseline instruction set has no rounding
+/// instruction, so std::floor is a call into libm).
+inline double frac(double x) { return x - double(int64_t(x)); }
 
 /// Point j of the R2 sequence, shifted per pixel and dimension pair (Cranley–Patterson): the
 /// samples of one pixel stay stratified over the square whatever their number.
@@ -154,6 +157,46 @@ inline float shadow_spread(const Light &L, float dist) {
 inline float srgb_to_linear(float c) {
     return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
 }
+inline Vec3 srgb_to_linear(Vec3 c) { return {srgb_to_linear(c.x), srgb_to_linear(c.y), srgb_to_linear(c.z)}; }
+
+/// An orthonormal basis (t, b) of the plane normal to a unit vector (make_basis).
+struct Basis {
+    Vec3 t, b;
+};
+inline Basis basis_of(Vec3 n) {
+    Basis out;
+    make_basis(n, out.t, out.b);
+    return out;
+}
+
+/// Whether two vectors are the same bits (not only equal: 0 and -0 differ).
+inline bool same_bits(Vec3 a, Vec3 b) {
+    uint32_t ua[3], ub[3];
+    std::memcpy(ua, &a, sizeof ua);
+    std::memcpy(ub, &b, sizeof ub);
+    return ua[0] == ub[0] && ua[1] == ub[1] && ua[2] == ub[2];
+}
+
+/// The last value of `F`, kept with its argument: runs of one argument (the ground's normal on
+/// most pixels of a view, the one colour of an uncoloured cloud) pay for one call. Arguments are
+/// compared bit for bit, so every result is F's own.
+template <class T, T (*F)(Vec3)>
+class LastValue {
+public:
+    const T &of(Vec3 v) {
+        if (!valid_ || !same_bits(v, key_)) {
+            key_ = v;
+            value_ = F(v);
+            valid_ = true;
+        }
+        return value_;
+    }
+
+private:
+    Vec3 key_;
+    T value_{};
+    bool valid_ = false;
+};
 
 /// Cosine-weighted direction in the hemisphere around unit `n`, `t`, `b` its basis (make_basis).
 inline Vec3 sample_cosine(Vec3 n, Vec3 t, Vec3 b, float u1, float u2) {
@@ -200,6 +243,9 @@ struct ShadowRay {
     Vec3 add;
     uint32_t pixel;
     bool ground_blocks;   ///< false for sky-visibility rays: the ground is part of the sky model
+    /// false: no object lies within the ray's length of its origin (nor does the ground block
+    /// it), so it is not blocked and `ray` is not even set.
+    bool may_hit = true;
 };
 
 struct Nearest {
@@ -219,11 +265,16 @@ public:
             if (o.geometry->bounds(b)) {   // the sphere around the box, grown by the margin
                 const float half = 0.5f * length(b.hi - b.lo);
                 const float r = half * (1.f + kBoundsMargin) + min_offset_;
-                reach = {(b.lo + b.hi) * 0.5f, r * r, true};
+                reach = {(b.lo + b.hi) * 0.5f, r, r * r, true};
             }
             reach_.push_back(reach);
         }
         make_basis(s.ground_normal, ground_t_, ground_b_);
+        // Squared distance beyond which the ground fade is 1 whatever the rounding: twice the
+        // fade distance, with a margin far above float error (sqrt and division are correctly
+        // rounded, so d >= 2.0001 fade gives d / fade - 1 >= 1 and a smoothstep of exactly 1).
+        const float fade_end = 2.0001f * s.sky.ground_fade;
+        fade_end2_ = s.sky.ground_fade > 0.f ? fade_end * fade_end : kInf;
         for (const Light &L : s.lights) light_cones_.emplace_back(L.direction, L.angle);
     }
 
@@ -240,7 +291,12 @@ public:
         albedo_.assign(size_t(npix), Vec3{0, 0, 0});
         rays_.clear();
         const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
-        for (int y = y0; y < y1; ++y)
+        if (!jitter) {   // pixel centres: the image-plane coordinates of the tile's columns, once
+            plane_x_.resize(size_t(tw));
+            for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
+        }
+        for (int y = y0; y < y1; ++y) {
+            const float row_y = jitter ? 0.f : cam_.plane_y(float(y) + 0.5f);
             for (int x = x0; x < x1; ++x) {
                 uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
                 float sx = 0.f, sy = 0.f;
@@ -257,13 +313,15 @@ public:
                     }
                     PathRay &pr = rays_.emplace_back();   // in place: a copied ray stalls on store forwarding
                     pr.ray.o = cam_.eye;
-                    pr.ray.d = cam_.direction(float(x) + u, float(y) + v);
+                    pr.ray.d = jitter ? cam_.direction(float(x) + u, float(y) + v)
+                                      : cam_.direction_at(plane_x_[size_t(x - x0)], row_y);
                     pr.ray.spread = spread;
                     pr.weight = Vec3{1, 1, 1} * (1.f / float(spp));
                     pr.pixel = uint32_t((y - y0) * tw + (x - x0));
                     pr.sample = s;
                 }
             }
+        }
         stats_.primary += rays_.size();
         clock_.lap(kTile);
         for (int bounce = 0; !rays_.empty(); ++bounce) {
@@ -278,12 +336,13 @@ public:
                 size_t gp = size_t(y) * size_t(cam_.width) + size_t(x);
                 for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = color_[lp][k];
                 uint32_t h = hits_[lp];
-                out.alpha[gp] = float(h) / float(spp);
-                out.depth[gp] = h ? depth_sum_[lp] / float(h) : kInf;
-                Vec3 n = h ? normalize(nsum_[lp]) : Vec3{0, 0, 0};
+                // (x / 1 is x: one sample or one hit needs no division)
+                out.alpha[gp] = spp == 1 ? float(h) : float(h) / float(spp);
+                out.depth[gp] = h == 1 ? depth_sum_[lp] : h ? depth_sum_[lp] / float(h) : kInf;
+                Vec3 n = h ? unit_normal_.of(nsum_[lp]) : Vec3{0, 0, 0};
                 for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = n[k];
                 for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo_[lp][k]);
-                out.object_alpha[gp] = float(object_hits_[lp]) / float(spp);
+                out.object_alpha[gp] = spp == 1 ? float(object_hits_[lp]) : float(object_hits_[lp]) / float(spp);
             }
         clock_.lap(kTile);
         clock_.end_tile(stats_.ns);
@@ -337,6 +396,18 @@ private:
         return traced;
     }
 
+    /// Whether some object may lie within `dist` of `p`: false when `p` is farther than `dist`
+    /// from every object's bounds (with a relative margin of 1e-3 over float rounding, itself
+    /// harmless: a ray let through is traced and finds nothing).
+    bool object_within(Vec3 p, float dist) const {
+        for (const Reach &reach : reach_) {
+            if (!reach.known) return true;
+            const float reach_r = (reach.r + dist) * (1.f + 1e-3f);
+            if (length2(reach.c - p) <= reach_r * reach_r) return true;
+        }
+        return false;
+    }
+
     Vec3 sky(Vec3 d) const {
         float e = dot(d, scene_.sky.up);
         if (e >= 0.f) {
@@ -384,9 +455,12 @@ private:
                 if (nh.object == -2 && sky_model.ground_fade > 0.f) {
                     // studio backdrop: the far ground blends into the background
                     Vec3 g = p - scene_.ground_point;
-                    float d = length(g - scene_.ground_normal * dot(g, scene_.ground_normal));
-                    float f = std::clamp(d / sky_model.ground_fade - 1.f, 0.f, 1.f);
-                    f = f * f * (3.f - 2.f * f);
+                    const float d2 = length2(g - scene_.ground_normal * dot(g, scene_.ground_normal));
+                    float f = 1.f;   // beyond the fade's end (most of a far view's pixels): exactly 1
+                    if (!(d2 > fade_end2_)) {
+                        f = std::clamp(std::sqrt(d2) / sky_model.ground_fade - 1.f, 0.f, 1.f);
+                        f = f * f * (3.f - 2.f * f);
+                    }
                     Vec3 bg = sky_model.background_is_sky ? sky(r.d) : sky_model.background;
                     color_[pr.pixel] += weight * bg * f;
                     albedo_[pr.pixel] += weight * clamp01(bg) * f;
@@ -397,9 +471,7 @@ private:
             const Material &m = nh.object == -2 ? scene_.ground_material
                                                 : scene_.objects[size_t(nh.object)].material;
             Vec3 albedo = m.base_color;
-            if (nh.object >= 0 && m.use_point_colors)
-                albedo = albedo * Vec3{srgb_to_linear(h.color.x), srgb_to_linear(h.color.y),
-                                       srgb_to_linear(h.color.z)};
+            if (nh.object >= 0 && m.use_point_colors) albedo = albedo * point_color_.of(h.color);
             if (nh.object == -2 && m.checker_size > 0.f) {
                 long cx = long(std::floor(dot(p, ground_t_) / m.checker_size));
                 long cy = long(std::floor(dot(p, ground_b_) / m.checker_size));
@@ -424,9 +496,18 @@ private:
                                   ? (bounce == 0 ? set_.occlusion_rays : 1) : 0;
             if (n_occ == 0) {
                 color_[pr.pixel] += ambient_add;
+            } else if (!object_within(origin, std::max(tmin, sky_model.occlusion_distance))) {
+                // no object within the rays' length: none is blocked, whatever its direction
+                for (int k = 0; k < n_occ; ++k) {
+                    ShadowRay &sr = shadows_.emplace_back();
+                    sr.add = ambient_add * (1.f / float(n_occ));
+                    sr.pixel = pr.pixel;
+                    sr.ground_blocks = false;
+                    sr.may_hit = false;
+                }
             } else {
-                Vec3 nt, nb;
-                make_basis(n, nt, nb);
+                const Basis &basis = basis_.of(n);
+                const Vec3 nt = basis.t, nb = basis.b;
                 for (int k = 0; k < n_occ; ++k) {
                     float u1, u2;
                     r2_point(set_.seed, gp, pr.sample * uint32_t(n_occ) + uint32_t(k),
@@ -445,9 +526,11 @@ private:
             }
             for (size_t li = 0; li < scene_.lights.size(); ++li) {
                 const Light &L = scene_.lights[li];
-                float u1, u2;
+                float u1 = 0.f, u2 = 0.f;   // a point on the light (not needed by a hard one)
+                const bool hard = L.type == LightType::Directional ? !(L.angle > 0.f)
+                                  : L.type == LightType::Point && !(L.radius > 0.f);
                 uint32_t ld = uint32_t(std::min<size_t>(li, kMaxStratifiedLights));
-                r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
+                if (!hard) r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
                 Vec3 ldir, radiance = L.color;
                 float dist = kInf;
                 if (L.type == LightType::Directional) {
@@ -518,8 +601,10 @@ private:
         const size_t n = shadows_.size();
         if (n == 0) return;
         stats_.shadow += n;
-        std::vector<uint8_t> blocked(n, 0), tmp;
-        std::vector<uint32_t> live(n);
+        std::vector<uint8_t> &blocked = blocked_, &tmp = occluded_;
+        std::vector<uint32_t> &live = live_;
+        blocked.assign(n, 0);
+        live.resize(n);
         for (size_t i = 0; i < n; ++i) live[i] = uint32_t(i);
         uint64_t traced = 0;
         for (size_t o = 0; o < scene_.objects.size(); ++o) {
@@ -528,8 +613,9 @@ private:
             batch_.clear();
             index_.clear();   // positions in `live` of the rays that can reach the object
             for (size_t k = 0; k < live.size(); ++k) {
-                const Ray &r = shadows_[live[k]].ray;
-                if (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax)) continue;
+                const ShadowRay &s = shadows_[live[k]];
+                const Ray &r = s.ray;
+                if (!s.may_hit || (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax))) continue;
                 batch_.push_back(r);
                 index_.push_back(uint32_t(k));
             }
@@ -570,6 +656,10 @@ private:
     RenderStats &stats_;
     PhaseClock clock_;
     Vec3 ground_t_, ground_b_;   ///< the ground plane's basis (checker cells)
+    float fade_end2_;   ///< squared distance from the ground point where its fade reaches 1
+    LastValue<Vec3, normalize> unit_normal_;   ///< a pixel's mean normal, normalised
+    LastValue<Vec3, srgb_to_linear> point_color_;   ///< a hit's colour, sRGB-decoded
+    LastValue<Basis, basis_of> basis_;   ///< a shading normal's basis (sky-visibility rays)
     std::vector<Cone> light_cones_;   ///< per light: the cone of a directional light's directions
     std::vector<Vec3> color_, nsum_;
     std::vector<float> depth_sum_;
@@ -582,6 +672,9 @@ private:
     std::vector<Ray> batch_;
     std::vector<uint32_t> index_;
     std::vector<SurfaceHit> tmp_;
+    std::vector<uint8_t> blocked_, occluded_;   ///< trace_shadows: per shadow ray, per batch ray
+    std::vector<uint32_t> live_;   ///< trace_shadows: the shadow rays not yet blocked
+    std::vector<float> plane_x_;   ///< render_tile: image-plane x of the tile's pixel centres
 };
 
 }  // namespace

@@ -687,6 +687,46 @@ void test_render_cancelled_midway(RenderScene scene, CameraModel cam, RenderSett
     }
 }
 
+/// The same geometry without bounds: the renderer must query it with every ray.
+class BoundlessGeometry final : public Geometry {
+public:
+    explicit BoundlessGeometry(std::shared_ptr<const Geometry> inner) : inner_(std::move(inner)) {}
+    void intersect(const Ray *rays, size_t n, SurfaceHit *hits) const override { inner_->intersect(rays, n, hits); }
+    void occluded(const Ray *rays, size_t n, uint8_t *hit) const override { inner_->occluded(rays, n, hit); }
+
+private:
+    std::shared_ptr<const Geometry> inner_;
+};
+
+/// Rays the renderer does not trace because they cannot reach an object's bounds (camera,
+/// shadow and reflection rays that miss its sphere; sky-visibility rays that start farther than
+/// their length from every object, which are not even sampled) change no bit of the frame:
+/// the oracle is the same scene with the bounds hidden, where every ray is traced.
+void test_render_skips_match_boundless(RenderScene scene, CameraModel cam, RenderSettings set) {
+    for (int spp : {1, 3}) {
+        set.spp = spp;
+        FrameBuffers direct, boundless;
+        RenderStats sd, sb;
+        Progress pd, pb;
+        CHECK(render(scene, cam, set, direct, sd, pd), "spp %d: render cancelled", spp);
+        RenderScene hidden = scene;
+        for (auto &o : hidden.objects) o.geometry = std::make_shared<BoundlessGeometry>(o.geometry);
+        CHECK(render(hidden, cam, set, boundless, sb, pb), "spp %d: render cancelled", spp);
+        CHECK(sd.shadow == sb.shadow && sd.shadow_traced < sb.shadow_traced && sd.primary_traced < sb.primary_traced,
+              "spp %d: shadow rays %llu / %llu traced %llu / %llu, camera rays traced %llu / %llu: nothing skipped", spp,
+              (unsigned long long)sd.shadow.load(), (unsigned long long)sb.shadow.load(),
+              (unsigned long long)sd.shadow_traced.load(), (unsigned long long)sb.shadow_traced.load(),
+              (unsigned long long)sd.primary_traced.load(), (unsigned long long)sb.primary_traced.load());
+        const auto same = [](const std::vector<float> &a, const std::vector<float> &b) {
+            return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+        };
+        CHECK(same(direct.color, boundless.color) && same(direct.depth, boundless.depth) &&
+                  same(direct.normal, boundless.normal) && same(direct.alpha, boundless.alpha) &&
+                  same(direct.albedo, boundless.albedo) && same(direct.object_alpha, boundless.object_alpha),
+              "spp %d: skipping rays that cannot reach an object changed the frame", spp);
+    }
+}
+
 /// A scene with two surfel objects, a ground, lights of every type.
 void test_render() {
     std::mt19937_64 g(71);
@@ -778,6 +818,13 @@ void test_render() {
     CHECK(!render(scene, cam, set, fb3, s3, cancelled), "a cancelled render reported success");
     CHECK(s3.tiles_done == 0, "cancelled render did %llu tiles", (unsigned long long)s3.tiles_done.load());
     test_render_cancelled_midway(scene, cam, set);
+    cam.width = 64;   // the ground far from the objects in view: sky-visibility rays skipped
+    cam.height = 48;
+    cam.eye = {0, 3.f, 9};
+    cam.forward = normalize(Vec3{0, -0.45f, -1});
+    cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
+    cam.up = cross(cam.right, cam.forward);
+    test_render_skips_match_boundless(scene, cam, set);
     // A 1x1 frame and a camera inside the sphere.
     cam.width = cam.height = 1;
     cam.eye = {0, 0, 0};

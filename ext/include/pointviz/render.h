@@ -20,12 +20,13 @@ struct CameraModel {
     float aspect() const { return float(width) / float(height); }
     /// Angle subtended by one pixel at the image centre.
     float pixel_angle() const { return 2.f * std::atan(tan_half / float(height)); }
+    /// Image-plane coordinates (at unit distance) of column `col` and row `row`.
+    float plane_x(float col) const { return (2.f * col / float(width) - 1.f) * tan_half * aspect(); }
+    float plane_y(float row) const { return (1.f - 2.f * row / float(height)) * tan_half; }
+    /// Unit direction through the image-plane point (sx, sy).
+    Vec3 direction_at(float sx, float sy) const { return normalize(forward + right * sx + up * sy); }
     /// Unit direction through (col + u, row + v), u, v in [0, 1).
-    Vec3 direction(float col, float row) const {
-        float sx = (2.f * col / float(width) - 1.f) * tan_half * aspect();
-        float sy = (1.f - 2.f * row / float(height)) * tan_half;
-        return normalize(forward + right * sx + up * sy);
-    }
+    Vec3 direction(float col, float row) const { return direction_at(plane_x(col), plane_y(row)); }
 };
 
 /// Surface appearance. Colours are linear RGB.
