@@ -66,11 +66,14 @@ void scan_tree_rows(const double *points, const std::vector<uint32_t> &ids,
     }
 }
 
-/// One scan's points by grid cell: at[(row - row0) * cols + col - col0] is the position in
-/// `ids` of the point in that cell, or -1.
+/// One scan's points by grid cell, with a border of kGridMaxRing empty cells on every side (a
+/// ring search never leaves the array): at[(row - row0 + pad) * stride + col - col0 + pad] is
+/// the index of the point in that cell, or kNoIndex.
 struct CellMap {
-    int32_t row0 = 0, col0 = 0, rows = 0, cols = 0;
-    std::vector<int32_t> at;
+    static constexpr int32_t pad = kGridMaxRing;
+    int32_t row0 = 0, col0 = 0;
+    size_t stride = 0;
+    std::vector<uint32_t> at;
 
     /// False when the scan's cells are not a grid of one point per cell (a shared cell) or the
     /// grid would be far larger than the scan (kMaxCellsPerPoint cells per point).
@@ -85,32 +88,38 @@ struct CellMap {
             r1 = std::max(r1, r), c1 = std::max(c1, c);
         }
         if (r1 < 0) return false;
-        rows = r1 - row0 + 1, cols = c1 - col0 + 1;
-        if (size_t(rows) * size_t(cols) > kMaxCellsPerPoint * ids.size()) return false;
-        at.assign(size_t(rows) * size_t(cols), -1);
-        for (size_t p = 0; p < ids.size(); ++p) {
-            int32_t r = cell[2 * size_t(ids[p])], c = cell[2 * size_t(ids[p]) + 1];
+        size_t rows = size_t(r1 - row0) + 1 + 2 * pad;
+        stride = size_t(c1 - col0) + 1 + 2 * pad;
+        if (rows * stride > kMaxCellsPerPoint * ids.size()) return false;
+        at.assign(rows * stride, kNoIndex);
+        for (uint32_t i : ids) {
+            int32_t r = cell[2 * size_t(i)], c = cell[2 * size_t(i) + 1];
             if (r < 0 || c < 0) continue;
-            int32_t &slot = at[size_t(r - row0) * size_t(cols) + size_t(c - col0)];
-            if (slot >= 0) return false;
-            slot = int32_t(p);
+            uint32_t &slot = at[offset(r, c)];
+            if (slot != kNoIndex) return false;
+            slot = i;
         }
         return true;
     }
+    size_t offset(int32_t r, int32_t c) const {
+        return size_t(r - row0 + pad) * stride + size_t(c - col0 + pad);
+    }
 };
 
-/// The k nearest of point `ids[p]` among the samples of the rings of cells around its own,
-/// into `heap`; false when they were still changing at the last ring (or fewer than k).
-bool grid_search(const double *points, const std::vector<uint32_t> &ids, const CellMap &map,
-                 int32_t row, int32_t col, uint32_t self, KnnHeap &heap) {
-    const double *q = points + 3 * size_t(self);
+/// The k nearest of point `self` (in cell (row, col)) among the samples of the rings of cells
+/// around its own, into `heap`; false when they were still changing at the last ring (or
+/// fewer than k).
+bool grid_search(const double *points, const CellMap &map, int32_t row, int32_t col,
+                 uint32_t self, KnnHeap &heap) {
+    const double q[3] = {points[3 * size_t(self)], points[3 * size_t(self) + 1],
+                         points[3 * size_t(self) + 2]};
     heap.size = 0;
+    const uint32_t *centre = map.at.data() + map.offset(row, col);
+    const ptrdiff_t stride = ptrdiff_t(map.stride);
     bool any = false, entered = false;
-    auto visit = [&](int32_t r, int32_t c) {
-        if (r < 0 || c < 0 || r >= map.rows || c >= map.cols) return;
-        int32_t p = map.at[size_t(r) * size_t(map.cols) + size_t(c)];
-        if (p < 0) return;
-        uint32_t j = ids[size_t(p)];
+    auto visit = [&](const uint32_t *slot) {
+        uint32_t j = *slot;
+        if (j == kNoIndex) return;
         const double *s = points + 3 * size_t(j);
         double d = (s[0] - q[0]) * (s[0] - q[0]) + (s[1] - q[1]) * (s[1] - q[1]) +
                    (s[2] - q[2]) * (s[2] - q[2]);
@@ -121,15 +130,16 @@ bool grid_search(const double *points, const std::vector<uint32_t> &ids, const C
         heap.push(d, j);
         entered = true;
     };
-    for (int32_t ring = 1; ring <= kGridMaxRing; ++ring) {
+    for (ptrdiff_t ring = 1; ring <= kGridMaxRing; ++ring) {
         any = entered = false;
-        for (int32_t dc = -ring; dc <= ring; ++dc) {
-            visit(row - ring, col + dc);
-            visit(row + ring, col + dc);
+        const uint32_t *top = centre - ring * stride, *bottom = centre + ring * stride;
+        for (ptrdiff_t dc = -ring; dc <= ring; ++dc) {
+            visit(top + dc);
+            visit(bottom + dc);
         }
-        for (int32_t dr = -ring + 1; dr < ring; ++dr) {
-            visit(row + dr, col - ring);
-            visit(row + dr, col + ring);
+        for (ptrdiff_t dr = -ring + 1; dr < ring; ++dr) {
+            visit(centre + dr * stride - ring);
+            visit(centre + dr * stride + ring);
         }
         if (heap.size == heap.k && any && !entered) return true;
     }
@@ -184,8 +194,7 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
             for (size_t p = 0; p < ids.size(); ++p) {
                 uint32_t i = ids[p];
                 int32_t r = cell[2 * size_t(i)], c = cell[2 * size_t(i) + 1];
-                if (r < 0 || c < 0 ||
-                    !grid_search(points, ids, map, r - map.row0, c - map.col0, i, heap)) {
+                if (r < 0 || c < 0 || !grid_search(points, map, r, c, i, heap)) {
                     rest.push_back(uint32_t(p));
                     continue;
                 }
