@@ -695,3 +695,26 @@ def test_scan_grid_normals_equal_the_scan_trees_on_virtual_scans():
         estimate_normals(raw.points, scan_grid=raw.scan_grid)
     with pytest.raises(InputError, match=r"scan_grid: expected shape"):
         estimate_normals(raw.points, scan_grid=raw.scan_grid[:5], **kw)
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("conf", ["stanford_bunny/data/bun.conf",
+                                  "stanford_dragon/dragon_stand/dragonStandRight.conf"])
+def test_real_range_grids_are_row_major_grids_of_the_scans(shared_data, conf):
+    """Every point of the Stanford scans has a cell, one point per cell, and the cells read
+    row-major (num_cols per row) are the scanner's grid: grid-adjacent samples lie about one
+    spacing apart (dragon 0.56 / 0.79 mm along a row / a column)."""
+    cloud = load(shared_data / conf, estimate=False)
+    grid, scan = cloud.scan_grid, cloud.scan_index
+    assert grid is not None and (grid >= 0).all()
+    key = (scan.astype(np.int64) << 40) | (grid[:, 0].astype(np.int64) << 20) | grid[:, 1]
+    assert len(np.unique(key)) == len(cloud)  # one point per cell
+    order = np.argsort(key)
+    right = np.searchsorted(key[order], key + 1)  # the next cell along the row, where present
+    right = np.minimum(right, len(key) - 1)
+    has = key[order][right] == key + 1
+    step = np.linalg.norm(cloud.points[order[right[has]]] - cloud.points[has], axis=1)
+    own = cloud.points[scan == 0]  # the sample spacing within a scan (the layers lie closer)
+    spacing = np.median(cKDTree(own).query(own, k=2)[0][:, 1])
+    assert has.mean() > 0.5
+    assert np.median(step) < 2.0 * spacing
