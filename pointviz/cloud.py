@@ -223,6 +223,8 @@ class PointCloud:
                 raise InputError(f"scan_grid: expected integers, got dtype {sg.dtype}")
             if sg.shape != (n, 2):
                 raise InputError(f"scan_grid: expected shape ({n}, 2), got {sg.shape}")
+            if sg.size and (sg.min() < -(2**31) or sg.max() >= 2**31):
+                raise InputError("scan_grid: rows and columns must fit in 32 bits")
             scan_grid = np.ascontiguousarray(sg, dtype=np.int32)
         self.scan_grid = scan_grid
         self.notes: list[str] = list(notes) if notes is not None else []

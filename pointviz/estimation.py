@@ -145,6 +145,8 @@ def _grid(scan_grid, groups, n: int):
         raise InputError(f"scan_grid: expected integers, got dtype {arr.dtype}")
     if groups is None:
         raise InputError("scan_grid: needs scan_index (the grid of which scan)")
+    if arr.size and (arr.min() < -(2**31) or arr.max() >= 2**31):
+        raise InputError("scan_grid: rows and columns must fit in 32 bits")
     return np.ascontiguousarray(arr, dtype=np.int32)
 
 

@@ -695,6 +695,11 @@ def test_scan_grid_normals_equal_the_scan_trees_on_virtual_scans():
         estimate_normals(raw.points, scan_grid=raw.scan_grid)
     with pytest.raises(InputError, match=r"scan_grid: expected shape"):
         estimate_normals(raw.points, scan_grid=raw.scan_grid[:5], **kw)
+    with pytest.raises(InputError, match="scan_grid: needs scan_index"):
+        PointCloud(raw.points, scan_grid=raw.scan_grid)
+    with pytest.raises(InputError, match="scan_grid: rows and columns must fit in 32 bits"):
+        PointCloud(raw.points, scan_index=raw.scan_index,
+                   scan_grid=raw.scan_grid.astype(np.int64) + 2**31)
 
 
 @pytest.mark.data
