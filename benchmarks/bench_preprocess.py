@@ -184,7 +184,8 @@ def surfels_pipeline(raw, cameras, settings):
     import pointviz
 
     t0 = time.perf_counter()
-    cloud = pointviz.PointCloud(raw.points, viewpoints=raw.viewpoints, scan_index=raw.scan_index)
+    cloud = pointviz.PointCloud(raw.points, viewpoints=raw.viewpoints, scan_index=raw.scan_index,
+                                scan_grid=raw.scan_grid)
     fitted = cloud.fitted()
     fitted.radii  # noqa: B018
     scene = pointviz.SurfelScene(fitted, cull=False)
@@ -296,10 +297,10 @@ def dragon_section(args, log) -> dict | None:
     for _ in range(args.repeat):
         _, t = timed(lambda: estimation.estimate_normals(
             raw.points, viewpoints=raw.viewpoints, scan_index=raw.scan_index,
-            threads=args.threads))
+            scan_grid=raw.scan_grid, threads=args.threads))
         steps["normals"].append(t)
         cloud = pointviz.PointCloud(raw.points, viewpoints=raw.viewpoints,
-                                    scan_index=raw.scan_index)
+                                    scan_index=raw.scan_index, scan_grid=raw.scan_grid)
         fitted, t = timed(lambda: cloud.fitted(threads=args.threads))
         steps["fit"].append(t)
         _, t = timed(lambda: fitted.radii)

@@ -147,6 +147,11 @@ class PointCloud:
         Per-point return intensity (LiDAR), stored as float32.
     scan_index : (n,) array_like of int, optional
         Which scan each point came from (registered range scans), stored as int32.
+    scan_grid : (n, 2) array_like of int, optional
+        Row and column of each point in its scan's sampling grid (a range scan's grid of rays,
+        e.g. a PLY ``range_grid``; negative: none), stored as int32; needs ``scan_index``.
+        Normals then take their neighbours within a scan from the grid (faster, see
+        :func:`pointviz.estimation.estimate_normals`).
     notes : list of str, optional
         Human-readable remarks from loading (e.g. how many non-finite points were dropped).
 
@@ -174,6 +179,7 @@ class PointCloud:
         viewpoints=None,
         intensity=None,
         scan_index=None,
+        scan_grid=None,
         notes: Sequence[str] | None = None,
     ):
         pts = _rows3("points", points, None)
@@ -209,6 +215,18 @@ class PointCloud:
                 raise InputError(f"scan_index: expected integers, got dtype {si.dtype}")
             scan_index = _validate_per_point("scan_index", si, n, np.int32)
         self.scan_index = scan_index
+        if scan_grid is not None:
+            if scan_index is None:
+                raise InputError("scan_grid: needs scan_index (the grid of which scan)")
+            sg = _numeric("scan_grid", scan_grid)
+            if sg.dtype.kind not in "iu":
+                raise InputError(f"scan_grid: expected integers, got dtype {sg.dtype}")
+            if sg.shape != (n, 2):
+                raise InputError(f"scan_grid: expected shape ({n}, 2), got {sg.shape}")
+            if sg.size and (sg.min() < -(2**31) or sg.max() >= 2**31):
+                raise InputError("scan_grid: rows and columns must fit in 32 bits")
+            scan_grid = np.ascontiguousarray(sg, dtype=np.int32)
+        self.scan_grid = scan_grid
         self.notes: list[str] = list(notes) if notes is not None else []
         #: What :meth:`fitted` changed (a dict), or None for a cloud that was not fitted.
         self.fit_report: dict | None = None
@@ -228,7 +246,8 @@ class PointCloud:
         """(n, 3) float32 unit normals; estimated (and cached) on first access if not given."""
         if self._normals is None:
             est = estimate_normals(self._points, viewpoints=self.viewpoints,
-                                   scan_index=self.scan_index, up=self.up)
+                                   scan_index=self.scan_index, scan_grid=self.scan_grid,
+                                   up=self.up)
             est.setflags(write=False)
             self._normals = est
         return self._normals
@@ -288,6 +307,7 @@ class PointCloud:
 
         fit = fit_surface(
             self._points, self._normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
+            scan_grid=self.scan_grid,
             up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric, threads=threads)
         keep = fit.keep
         out = self.subset(keep)  # every per-point attribute, estimated radii dropped
@@ -404,6 +424,7 @@ class PointCloud:
         out.viewpoints = extra.get("viewpoints")
         out.intensity = extra.get("intensity")
         out.scan_index = extra.get("scan_index")
+        out.scan_grid = extra.get("scan_grid")
         out.notes = list(self.notes)
         out.fit_report = getattr(self, "fit_report", None)
         return out
@@ -419,7 +440,8 @@ class PointCloud:
         Returns
         -------
         PointCloud
-            Given normals/radii/colours, intensity, scan_index and per-point viewpoints are
+            Given normals/radii/colours, intensity, scan_index, scan_grid and per-point
+            viewpoints are
             carried over. Normals already estimated are carried over too (orientation is local);
             estimated radii are not, since they depend on the density of the subset.
         """
@@ -463,6 +485,7 @@ class PointCloud:
             viewpoints=vp,
             intensity=take(self.intensity),
             scan_index=take(self.scan_index),
+            scan_grid=take(self.scan_grid),
         )
 
     def transformed(self, matrix) -> PointCloud:
@@ -521,6 +544,7 @@ class PointCloud:
             viewpoints=vp,
             intensity=None if self.intensity is None else self.intensity.copy(),
             scan_index=None if self.scan_index is None else self.scan_index.copy(),
+            scan_grid=None if self.scan_grid is None else self.scan_grid.copy(),
         )
 
     # -- conversions --------------------------------------------------------------------------

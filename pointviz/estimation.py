@@ -134,6 +134,22 @@ def _groups(scan_index, viewpoints, n: int):
     return None
 
 
+def _grid(scan_grid, groups, n: int):
+    """(n, 2) int32 grid cell (row, column) of each point in its scan, or None; needs scans."""
+    if scan_grid is None:
+        return None
+    arr = array_checks.numeric("scan_grid", scan_grid)
+    if arr.shape != (n, 2):
+        raise InputError(f"scan_grid: expected shape ({n}, 2), got {arr.shape}")
+    if arr.dtype.kind not in "iu":
+        raise InputError(f"scan_grid: expected integers, got dtype {arr.dtype}")
+    if groups is None:
+        raise InputError("scan_grid: needs scan_index (the grid of which scan)")
+    if arr.size and (arr.min() < -(2**31) or arr.max() >= 2**31):
+        raise InputError("scan_grid: rows and columns must fit in 32 bits")
+    return np.ascontiguousarray(arr, dtype=np.int32)
+
+
 def _up(value):
     if value is None:
         return None
@@ -196,6 +212,7 @@ def estimate_normals(
     k: int | None = None,
     viewpoints=None,
     scan_index=None,
+    scan_grid=None,
     up=None,
     threads: int = 0,
     details: bool = False,
@@ -217,6 +234,12 @@ def estimate_normals(
         own scan only: a range scan sees one side of a thin part, while the registered scans
         together put both sides of a claw or spike into one neighbourhood and tilt its plane
         across the part. Without it, points with the same viewpoint form one scan.
+    scan_grid : (n, 2) array_like of int, optional
+        Row and column of each point in its scan's sampling grid (a range scanner's grid of
+        rays, e.g. a PLY ``range_grid``; negative: none), with ``scan_index``. Neighbours within
+        a scan are then found among the grid cells around a point instead of by a search of the
+        whole scan (the same neighbours on surfaces the grid samples smoothly; see
+        ``scan_neighbours.h`` in the core).
     up : (3,) array_like, optional
         Tie-break for open, flat parts without viewpoints.
     threads : int
@@ -245,9 +268,10 @@ def estimate_normals(
     else:
         k_min = k_max = max(3, _count("k", k, 3))
     vp = _viewpoints(viewpoints, n)
+    groups = _groups(scan_index, vp, n)
     out = _core().estimate_normals(
-        pts, vp, _groups(scan_index, vp, n), _up(up), min(k_min, n), min(k_max, n),
-        NORMAL_CONFIDENCE, _orient(), _threads(threads),
+        pts, vp, groups, _up(up), min(k_min, n), min(k_max, n),
+        NORMAL_CONFIDENCE, _orient(), _threads(threads), _grid(scan_grid, groups, n),
     )
     normals = out.pop("normals")
     if details:
@@ -410,7 +434,8 @@ class SurfaceFit:
         return text
 
 
-def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=None,
+def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_grid=None,
+                up=None,
                 thin: float = FIT_THIN, quadric: bool = True, passes: int = FIT_PASSES,
                 robust_passes: int = FIT_ROBUST_PASSES, strays: bool = True,
                 threads: int = 0) -> SurfaceFit:
@@ -441,6 +466,9 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
     scan_index : (n,) array_like of int, optional
         Which scan each point came from. Without it, points with the same viewpoint form one
         scan (or all points, without viewpoints).
+    scan_grid : (n, 2) array_like of int, optional
+        Each point's cell in its scan's sampling grid, for the normals' neighbours within
+        scans (see :func:`estimate_normals`).
     up : (3,) array_like, optional
         Orientation tie-break (see :func:`orient_normals`).
     thin : float
@@ -473,6 +501,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, up=No
         NORMAL_CONFIDENCE, _orient(), FIT_MIN_SUPPORT, bool(quadric), _count("passes", passes, 1),
         _count("robust_passes", robust_passes, 0),
         FIT_ROBUST_WIDTH, float(thin), bool(strays), _threads(threads),
+        _grid(scan_grid, group, n) if nrm is None else None,
     )
     return SurfaceFit(points=out["points"], normals=out["normals"], keep=out["keep"].astype(bool),
                       shift=out["shift"], unmoved=int(out["unmoved"]),

@@ -73,8 +73,9 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     -------
     PointCloud
         With ``name`` set to the file name. Extra attributes: ``notes`` (what was dropped or
-        assumed), ``intensity`` ((n,) float32, LAS/LAZ) and ``scan_index`` ((n,) int32,
-        ``.conf``).
+        assumed), ``intensity`` ((n,) float32, LAS/LAZ), ``scan_index`` ((n,) int32,
+        ``.conf``) and ``scan_grid`` ((n, 2) int32, ``.conf`` of ASCII PLY range scans with a
+        ``range_grid``: each point's row and column in its scanner's grid).
 
     Raises
     ------

@@ -628,3 +628,98 @@ def test_conf_scan_with_nan_rows_drops_them_with_a_note(tmp_path, rng):
     np.testing.assert_array_equal(np.bincount(cloud.scan_index), [198, 180])
     # the viewpoint comes from the finite points only
     assert np.isfinite(cloud.viewpoints).all()
+
+
+def _range_scan_bytes(pts, cells, rows, cols):
+    """An ASCII range scan as Stanford's scans are stored: its vertices, then a ``range_grid``
+    of rows x cols cells (row-major), each listing the vertex it holds (or none)."""
+    grid = [[] for _ in range(rows * cols)]
+    for v, c in enumerate(cells):
+        if c >= 0:
+            grid[c] = [v]
+    body = _ply_bytes("ascii", pts.astype(np.float32), extra_element=grid)
+    head, data = body.split(b"end_header\n", 1)
+    head = head.replace(b"element vertex",
+                        f"obj_info num_cols {cols}\nobj_info num_rows {rows}\nelement vertex"
+                        .encode(), 1)
+    return head + b"end_header\n" + data
+
+
+def test_conf_range_grid_gives_each_point_its_cell(tmp_path, rng):
+    """Each scan's range_grid becomes the row and column of its points (-1: in no cell), in
+    the order of the points; a grid the header does not size is not used."""
+    rows, cols, want = 5, 7, []
+    for k in range(2):
+        n = 20 + 3 * k
+        cells = rng.permutation(rows * cols)[:n]
+        cells[4] = -1  # a vertex in no cell
+        (tmp_path / f"s{k}.ply").write_bytes(_range_scan_bytes(rng.random((n, 3)), cells, rows,
+                                                               cols))
+        want.append(np.where(cells[:, None] >= 0, np.stack([cells // cols, cells % cols], 1), -1))
+    (tmp_path / "g.conf").write_text("bmesh s0.ply 0 0 0 0 0 0 1\nbmesh s1.ply 1 0 0 0 0 0 1\n")
+    cloud = load(tmp_path / "g.conf", estimate=False)
+    np.testing.assert_array_equal(cloud.scan_grid, np.concatenate(want))
+    assert cloud.scan_grid.dtype == np.int32
+    assert cloud.subset(np.arange(5, 30)).scan_grid.shape == (25, 2)
+    # a vertex index beyond the vertices: named, with the grid's row
+    data = (tmp_path / "s1.ply").read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    lines = body.split(b"\n")
+    first = next(i for i, line in enumerate(lines) if i >= 23 and line.startswith(b"1 "))
+    lines[first] = b"1 999"
+    (tmp_path / "s1.ply").write_bytes(head + b"end_header\n" + b"\n".join(lines))
+    with pytest.raises(FileFormatError, match=r"line 2: .*s1\.ply: malformed ASCII PLY: "
+                                              r"range_grid row \d+ lists a vertex index"):
+        load(tmp_path / "g.conf")
+    # cells that do not match the header's num_cols x num_rows: no grid, points as before
+    (tmp_path / "s1.ply").write_bytes(data.replace(b"obj_info num_rows 5", b"obj_info num_rows 6"))
+    cloud2 = load(tmp_path / "g.conf", estimate=False)
+    assert cloud2.scan_grid is None
+    np.testing.assert_array_equal(cloud2.points, cloud.points)
+
+
+def test_scan_grid_normals_equal_the_scan_trees_on_virtual_scans():
+    """Normals from grid neighbours match those from each scan's KD-tree (the same neighbours
+    on a smooth surface; a ring search may end differently where noise reorders them)."""
+    from pointviz.comparison.scans import virtual_scans
+    from pointviz.estimation import estimate_normals
+
+    raw, _ = virtual_scans("torus", scans=4, resolution=80, noise=0.001)
+    assert raw.scan_grid is not None and raw.scan_grid.shape == (len(raw), 2)
+    kw = dict(viewpoints=raw.viewpoints, scan_index=raw.scan_index)
+    tree = estimate_normals(raw.points, **kw)
+    grid = estimate_normals(raw.points, scan_grid=raw.scan_grid, **kw)
+    same = (tree == grid).all(axis=1)
+    assert same.mean() > 0.99, same.mean()
+    with pytest.raises(InputError, match="scan_grid: needs scan_index"):
+        estimate_normals(raw.points, scan_grid=raw.scan_grid)
+    with pytest.raises(InputError, match=r"scan_grid: expected shape"):
+        estimate_normals(raw.points, scan_grid=raw.scan_grid[:5], **kw)
+    with pytest.raises(InputError, match="scan_grid: needs scan_index"):
+        PointCloud(raw.points, scan_grid=raw.scan_grid)
+    with pytest.raises(InputError, match="scan_grid: rows and columns must fit in 32 bits"):
+        PointCloud(raw.points, scan_index=raw.scan_index,
+                   scan_grid=raw.scan_grid.astype(np.int64) + 2**31)
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("conf", ["stanford_bunny/data/bun.conf",
+                                  "stanford_dragon/dragon_stand/dragonStandRight.conf"])
+def test_real_range_grids_are_row_major_grids_of_the_scans(shared_data, conf):
+    """Every point of the Stanford scans has a cell, one point per cell, and the cells read
+    row-major (num_cols per row) are the scanner's grid: grid-adjacent samples lie about one
+    spacing apart (dragon 0.56 / 0.79 mm along a row / a column)."""
+    cloud = load(shared_data / conf, estimate=False)
+    grid, scan = cloud.scan_grid, cloud.scan_index
+    assert grid is not None and (grid >= 0).all()
+    key = (scan.astype(np.int64) << 40) | (grid[:, 0].astype(np.int64) << 20) | grid[:, 1]
+    assert len(np.unique(key)) == len(cloud)  # one point per cell
+    order = np.argsort(key)
+    right = np.searchsorted(key[order], key + 1)  # the next cell along the row, where present
+    right = np.minimum(right, len(key) - 1)
+    has = key[order][right] == key + 1
+    step = np.linalg.norm(cloud.points[order[right[has]]] - cloud.points[has], axis=1)
+    own = cloud.points[scan == 0]  # the sample spacing within a scan (the layers lie closer)
+    spacing = np.median(cKDTree(own).query(own, k=2)[0][:, 1])
+    assert has.mean() > 0.5
+    assert np.median(step) < 2.0 * spacing

@@ -403,6 +403,15 @@ PointsView points_view(const CArray<double> &points, const std::optional<CArray<
     return v;
 }
 
+/// Adds the (n, 2) grid cells of the points (scan_neighbours.h) to a view that has scans.
+void add_scan_grid(PointsView &v, const std::optional<CArray<int32_t>> &grid) {
+    if (!grid) return;
+    check_rows("scan_grid", grid->ndim(), grid->shape(0), grid->ndim() > 1 ? grid->shape(1) : 0,
+               v.n, 2);
+    if (!v.group) throw nb::value_error("scan_grid: needs scan_index");
+    v.cell = grid->data();
+}
+
 void check_normals(const CArray<float> &normals, size_t n) {
     check_rows("normals", normals.ndim(), normals.shape(0),
                normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
@@ -750,14 +759,16 @@ NB_MODULE(_core, m) {
     m.def("estimate_normals", [](CArray<double> points, std::optional<CArray<double>> viewpoints,
                                  std::optional<CArray<int32_t>> scan_index,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,
-                                 uint32_t k_max, double confidence, OrientArgs orient, int threads) {
+                                 uint32_t k_max, double confidence, OrientArgs orient, int threads,
+                                 std::optional<CArray<int32_t>> scan_grid) {
         PointsView v = points_view(points, viewpoints, scan_index);
+        add_scan_grid(v, scan_grid);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
         OrientOptions oo = orient_options(orient, up);
         NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
         return normals_dict(o, v.n);
     }, "points"_a, "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(), "k_min"_a,
-       "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0);
+       "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0, "scan_grid"_a.none() = nb::none());
 
     m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
                                std::optional<CArray<double>> viewpoints,
@@ -797,8 +808,10 @@ NB_MODULE(_core, m) {
                             std::optional<std::array<double, 3>> up, uint32_t k_min, uint32_t k_max,
                             double confidence, OrientArgs orient, uint32_t min_support,
                             bool quadric, int passes, int robust_passes, double robust_width,
-                            double thin, bool strays, int threads) {
+                            double thin, bool strays, int threads,
+                            std::optional<CArray<int32_t>> scan_grid) {
         PointsView v = points_view(points, viewpoints, scan_index);
+        add_scan_grid(v, scan_grid);
         if (normals) check_normals(*normals, v.n);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
         OrientOptions oo = orient_options(orient, up);
@@ -828,10 +841,12 @@ NB_MODULE(_core, m) {
         d["stray_points"] = o.stray.points;
         d["stray_clusters"] = o.stray.clusters;
         if (!nrm) d["estimate"] = normals_dict(o.normals, v.n);
+        d["grid_neighbours"] = o.normals.grid.from_grid;
         return d;
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
        "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,
-       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "strays"_a = true, "threads"_a = 0);
+       "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "strays"_a = true, "threads"_a = 0,
+       "scan_grid"_a.none() = nb::none());
 
     m.def("stray_clusters", [](CArray<double> points, std::optional<CArray<int32_t>> scan_index,
                                uint32_t k, double reach, uint32_t min_points, double fraction,

@@ -64,7 +64,9 @@ inline void bind_readers(nb::module_ &m) {
         .def_rw("exact_columns", &TableSpec::exact_columns)
         .def_rw("commas", &TableSpec::commas)
         .def_rw("transform", &TableSpec::transform)
-        .def_rw("affine", &TableSpec::affine);
+        .def_rw("affine", &TableSpec::affine)
+        .def_rw("grid_cells", &TableSpec::grid_cells)
+        .def_rw("grid_cols", &TableSpec::grid_cols);
     nb::exception<pointviz::TruncatedData>(m, "TruncatedData", PyExc_ValueError);
     nb::exception<pointviz::MalformedData>(m, "MalformedData", PyExc_ValueError);
 
@@ -77,6 +79,12 @@ inline void bind_readers(nb::module_ &m) {
             nb::dict d;
             d["values"] = table_array(tables[i], specs[i].wanted.size());
             d["lines_after"] = tables[i].lines_after;
+            if (!tables[i].grid.empty()) {
+                size_t shape[2] = {size_t(tables[i].rows), 2};
+                d["grid"] = nb::cast(nb::ndarray<nb::numpy, int32_t>(tables[i].grid.data(), 2,
+                                                                      shape, nb::handle()),
+                                     nb::rv_policy::copy);
+            }
             d["lo"] = ps.lo;
             d["hi"] = ps.hi;
             d["sum"] = ps.sum;
@@ -87,7 +95,7 @@ inline void bind_readers(nb::module_ &m) {
     }, "specs"_a, "threads"_a = 0,
     "Read the numeric rows each TableSpec describes (several files in parallel). Returns one dict "
     "per spec: values ((rows, len(wanted)) float64), lines_after, and lo, hi, sum, finite of the "
-    "positions as read (before the affine map).");
+    "positions as read (before the affine map), and grid ((rows, 2) int32) with grid_cells.");
 }
 
 }  // namespace pointviz_bindings

@@ -3,8 +3,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
+#include <thread>
 
-#include "pointviz/scan_neighbours.h"
 
 namespace pointviz {
 
@@ -33,7 +34,7 @@ namespace {
 struct Spatial {
     std::vector<uint32_t> perm;          ///< perm[r]: input index of the point stored at r
     std::vector<double> viewpoints;
-    std::vector<int32_t> group;
+    std::vector<int32_t> group, cell;
     PointsView view;
     KnnTree tree;
 
@@ -54,6 +55,10 @@ struct Spatial {
             group.resize(in.n);
             for (size_t r = 0; r < in.n; ++r) group[r] = in.group[perm[r]];
             view.group = group.data();
+        }
+        if (in.cell) {
+            cell = to_tree(in.cell, 2);
+            view.cell = cell.data();
         }
     }
     /// `rows` values per point, from tree order to input order.
@@ -92,9 +97,12 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     bool need_all = !in.group || !in.viewpoints;
     if (need_all && !t) t = &(own = knn_all(tree, in.points, k, nopt.threads, &progress));
     if (in.group && in.n > 1) {
-        NeighbourTable scan = knn_within_groups(in.points, in.n, in.group,
-                                                std::min<uint64_t>(nopt.k_max - 1, in.n - 1),
-                                                tree, nopt.threads, &progress);
+        uint32_t ks = std::min<uint64_t>(nopt.k_max - 1, in.n - 1);
+        NeighbourTable scan =
+            in.cell ? knn_within_grids(in.points, in.n, in.group, in.cell, ks, tree,
+                                       nopt.threads, &progress, &out.grid)
+                    : knn_within_groups(in.points, in.n, in.group, ks, tree, nopt.threads,
+                                        &progress);
         out.est = estimate_normals(in.points, scan, nopt, &progress);
     } else {
         out.est = estimate_normals(in.points, *t, nopt, &progress);
@@ -153,6 +161,28 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
     uint32_t k = std::max({nopt.k_max - 1, oopt.k, fopt.min_support - 1});
     NeighbourTable t = knn_all(sp.tree, sp.view.points, k, fopt.threads, &progress);
     FitOutput out;
+    const PointsView &v = sp.view;
+    // the stray clusters (the components of the input's neighbour graph: the fit moves points
+    // apart) on a thread of their own beside the normals and the fit: mostly a serial
+    // union-find, which would otherwise leave the other cores idle after the fit
+    std::exception_ptr stray_error;
+    std::thread stray_worker;
+    if (sopt)
+        stray_worker = std::thread([&] {
+            try {
+                StrayOptions so = *sopt;
+                so.threads = 1;
+                out.stray = find_stray_clusters(v.points, t, v.group, so, &progress);
+            } catch (...) {
+                stray_error = std::current_exception();
+            }
+        });
+    struct Join {
+        std::thread &t;
+        ~Join() {
+            if (t.joinable()) t.join();
+        }
+    } join{stray_worker};
     std::vector<float> nrm;
     const uint32_t *support = nullptr;
     if (normals) {
@@ -162,13 +192,13 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
         nrm = out.normals.est.normals;
         support = out.normals.est.support.data();
     }
-    const PointsView &v = sp.view;
     out.fit = fit_surface(v.points, nrm.data(), support, t, v.group, v.viewpoints, v.n_viewpoints,
                           fopt, &progress);
     if (!normals) normals_to_input(sp, out.normals);
     FitResult &f = out.fit;
-    if (sopt) {  // the components of the input's neighbour graph: the fit moved points apart
-        out.stray = find_stray_clusters(v.points, t, v.group, *sopt, &progress);
+    if (sopt) {
+        stray_worker.join();
+        if (stray_error) std::rethrow_exception(stray_error);
         for (size_t i = 0; i < v.n; ++i)
             if (out.stray.stray[i]) f.keep[i] = 0;
         f.kept = size_t(std::count(f.keep.begin(), f.keep.end(), uint8_t(1)));

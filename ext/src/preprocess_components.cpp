@@ -74,12 +74,21 @@ StrayResult find_stray_clusters(const double *points, const NeighbourTable &nb,
     for (size_t i = 0; i < n; ++i) parent[i] = uint32_t(i);
     for (size_t b = 0; b < n; b += kGrain) {
         size_t e = std::min(n, b + kGrain);
-        for (size_t i = b; i < e; ++i)
+        for (size_t i = b; i < e; ++i) {
+            // i's root, kept current as its neighbours' components join it (the root of a
+            // component is its smallest index)
+            uint32_t a = find_root(parent, uint32_t(i));
             for (uint32_t m = 0; m < nb.k; ++m) {
                 if (!link[i * nb.k + m]) continue;
-                uint32_t a = find_root(parent, uint32_t(i)), c = find_root(parent, nb.row(i)[m]);
-                if (a != c) parent[std::max(a, c)] = std::min(a, c);  // root: smallest index
+                uint32_t c = find_root(parent, nb.row(i)[m]);
+                if (c > a) {
+                    parent[c] = a;
+                } else if (c < a) {
+                    parent[a] = c;
+                    a = c;
+                }
             }
+        }
         if (progress) progress->advance(e - b);
         check_cancel(progress);
     }

@@ -13,33 +13,6 @@
 
 namespace pointviz {
 
-/// The k best (squared distance, index) pairs seen so far, kept sorted: k is small (<= 64), so
-/// insertion into a sorted array beats a binary heap.
-struct KnnHeap {
-    uint32_t k = 0, size = 0;
-    double *d2;
-    uint32_t *idx;
-    /// The squared distance a candidate must not exceed to matter.
-    double bound() const {
-        return size < k ? std::numeric_limits<double>::infinity() : d2[k - 1];
-    }
-    void push(double d, uint32_t i) {
-        if (size == k) {
-            if (d > d2[k - 1] || (d == d2[k - 1] && i > idx[k - 1])) return;
-        } else {
-            ++size;
-        }
-        uint32_t j = size - 1;
-        while (j > 0 && (d < d2[j - 1] || (d == d2[j - 1] && i < idx[j - 1]))) {
-            d2[j] = d2[j - 1];
-            idx[j] = idx[j - 1];
-            --j;
-        }
-        d2[j] = d;
-        idx[j] = i;
-    }
-};
-
 namespace {
 
 /// Nodes at depth `depth_` are leaves: the fewest levels that bring every leaf to kLeafSize.

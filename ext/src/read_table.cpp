@@ -171,6 +171,35 @@ void merge_stats(const std::vector<PositionStats> &parts, PositionStats &out) {
     for (const PositionStats &p : parts) out.merge(p);
 }
 
+/// Parses a non-negative decimal integer at p (after separators); false if there is none.
+bool parse_index(const char *&p, const char *e, uint64_t &v) {
+    while (p != e && is_separator(*p, false)) ++p;
+    if (p == e || *p < '0' || *p > '9') return false;
+    v = 0;
+    while (p != e && *p >= '0' && *p <= '9') {
+        v = v * 10 + uint64_t(*p - '0');
+        if (v > (uint64_t(1) << 40)) return false;
+        ++p;
+    }
+    return p == e || is_separator(*p, false);
+}
+
+/// One line [b, e) of a range grid: cell `c`'s count and row indices into `grid`.
+void parse_grid_line(const char *b, const char *e, uint64_t c, const TableSpec &spec,
+                     uint64_t nrows, std::vector<int32_t> &grid) {
+    uint64_t count = 0, v = 0;
+    const char *p = b;
+    if (!parse_index(p, e, count))
+        throw MalformedData("range_grid row " + std::to_string(c) + " has no count");
+    for (uint64_t m = 0; m < count; ++m) {
+        if (!parse_index(p, e, v) || v >= nrows)
+            throw MalformedData("range_grid row " + std::to_string(c) +
+                                " lists a vertex index that is missing or out of range");
+        grid[2 * v] = int32_t(c / spec.grid_cols);
+        grid[2 * v + 1] = int32_t(c % spec.grid_cols);
+    }
+}
+
 void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
                 Progress &progress, const std::vector<int> &slot) {
     const char *data = buf.data();
@@ -199,12 +228,18 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
         throw TruncatedData("the data ends after " + std::to_string(nrows) + " of the " +
                             std::to_string(spec.rows) + " rows");
     if (spec.rows >= 0) {  // lines after the rows, for the file's other elements
+        const bool grid = spec.grid_cells > 0 && spec.grid_cols > 0 &&
+                          spec.grid_cells / spec.grid_cols < uint64_t(INT32_MAX);
+        if (grid) out.grid.assign(2 * size_t(nrows), -1);
         uint64_t after = 0;
         const char *q = p;
         while (q < end) {
             const char *nl = static_cast<const char *>(std::memchr(q, '\n', size_t(end - q)));
+            if (grid && after < spec.grid_cells)
+                parse_grid_line(q, nl ? nl : end, after, spec, nrows, out.grid);
             ++after;
             q = nl ? nl + 1 : end;
+            if ((after & (kRowGrain - 1)) == 0) progress.check();
         }
         out.lines_after = after;
     }

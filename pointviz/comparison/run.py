@@ -111,7 +111,7 @@ def _without_estimates(cloud):
     on it (the arrays are shared, nothing is copied or checked again)."""
     return cloud._derive(cloud.points, None, False, None, False, cloud.colors,
                          up=cloud.up, viewpoints=cloud.viewpoints, intensity=cloud.intensity,
-                         scan_index=cloud.scan_index)
+                         scan_index=cloud.scan_index, scan_grid=cloud.scan_grid)
 
 
 def run_methods(cloud, camera, settings: Settings, methods, reference_frame, diagonal,

@@ -115,7 +115,8 @@ def virtual_scans(shape: str = "torus", *, scans: int = 8, resolution: int = 160
     Returns
     -------
     cloud : PointCloud
-        Points without normals, ``viewpoints`` (n, 3) and ``scan_index``.
+        Points without normals, ``viewpoints`` (n, 3), ``scan_index`` and ``scan_grid`` (each
+        point's ray in its scan's grid).
     exact : ExactShape
     """
     if shape not in ("sphere", "torus"):
@@ -134,7 +135,7 @@ def virtual_scans(shape: str = "torus", *, scans: int = 8, resolution: int = 160
     half = np.arctan(0.55 * size / (VIEW_DISTANCE * size))  # the shape fills the view
     s = np.tan(half) * np.linspace(-1.0, 1.0, resolution)
     gu, gv = np.meshgrid(s, s, indexing="ij")
-    pts, vps, idx = [], [], []
+    pts, vps, idx, cells = [], [], [], []
     for k, eye in enumerate(views):
         fwd = -eye / np.linalg.norm(eye)
         right = np.cross(fwd, [0.0, 1.0, 0.0])
@@ -151,8 +152,10 @@ def virtual_scans(shape: str = "torus", *, scans: int = 8, resolution: int = 160
         pts.append(p @ rot.T + shift)
         vps.append(np.repeat((rot @ eye + shift)[None], ok.sum(), axis=0))
         idx.append(np.full(ok.sum(), k, np.int32))
+        cells.append(np.stack(np.divmod(np.flatnonzero(ok), resolution), 1).astype(np.int32))
     cloud = PointCloud(np.concatenate(pts), viewpoints=np.concatenate(vps),
-                       scan_index=np.concatenate(idx), name=f"{shape} scans",
+                       scan_index=np.concatenate(idx), scan_grid=np.concatenate(cells),
+                       name=f"{shape} scans",
                        notes=[f"{scans} virtual scans of a {shape}, depth noise {noise:g} x size, "
                               f"misregistration {misregistration:g}"])
     return cloud, exact

@@ -95,7 +95,7 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
                 "lists point files"
             )
     scans = _read_scans(path, entries, read_scan)
-    parts = []
+    parts, grids = [], []
     for (scan_path, t, q, lineno), scan in zip(entries, scans):
         if scan.finite == 0:
             raise FileFormatError(f"{path}: line {lineno}: {scan_path}: no finite points")
@@ -105,6 +105,7 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
         eye_local = scan.mean + [0.0, 0.0, RANGE_SCAN_VIEW_DISTANCE * np.linalg.norm(scan.hi - scan.lo)]
         eye = eye_local @ rot + t
         parts.append((scan_path.name, scan.points, scan.colors, eye))
+        grids.append(scan.grid)
     points = np.concatenate([w for _, w, _, _ in parts])
     sizes = [len(w) for _, w, _, _ in parts]
     colors = None
@@ -112,6 +113,8 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
         colors = np.concatenate([c for _, _, c, _ in parts])
     viewpoints = np.repeat(np.array([e for _, _, _, e in parts]), sizes, axis=0)
     scan_index = np.repeat(np.arange(len(parts), dtype=np.int32), sizes)
+    # the scanner's grid of each scan (its range_grid): neighbours within a scan come from it
+    scan_grid = np.concatenate(grids) if all(g is not None for g in grids) else None
     notes = [
         (
             f"registered {len(parts)} scans ({', '.join(name for name, _, _, _ in parts)}); "
@@ -119,7 +122,7 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
         )
     ]
     return point_cloud(path, points, None, colors, sample=sample, rng=rng, viewpoints=viewpoints,
-                       scan_index=scan_index, notes=notes)
+                       scan_index=scan_index, scan_grid=scan_grid, notes=notes)
 
 
 @dataclass
@@ -132,6 +135,7 @@ class _Scan:
     hi: np.ndarray
     mean: np.ndarray
     finite: int
+    grid: np.ndarray | None = None  # (n, 2) int32 cell of each point in the scan's grid
 
 
 def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
@@ -169,7 +173,7 @@ def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
                 data = tables[i]
                 arrays = ply.points_from_table(plans[i], data)
                 scans.append(_Scan(arrays["points"], arrays["colors"], data.lo, data.hi,
-                                   data.mean, data.finite))
+                                   data.mean, data.finite, arrays["grid"]))
             else:
                 cloud = read_scan(scan_path)  # finite rows only
                 local = cloud.points

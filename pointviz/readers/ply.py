@@ -54,7 +54,8 @@ def _ply_header(path: Path) -> dict:
     dict
         ``format`` ('ascii', 'binary_little_endian', 'binary_big_endian'), ``header_bytes``
         and ``elements``: list of ``(name, count, properties)`` where each property is
-        ``(name, type)`` or ``(name, ('list', count_type, item_type))``.
+        ``(name, type)`` or ``(name, ('list', count_type, item_type))``; ``obj_info``: the
+        ``obj_info NAME VALUE`` lines as a dict of strings.
     """
     with open(path, "rb") as fh:
         head = fh.read(_PLY_HEADER_BLOCK)
@@ -71,10 +72,12 @@ def _ply_header(path: Path) -> dict:
         raise FileFormatError(f"{path}: PLY header has no 'end_header' line")
     nl = head.find(b"\n", end)
     header_bytes = len(head) if nl < 0 else nl + 1
-    fmt, elements = None, []
+    fmt, elements, info = None, [], {}
     lines = head[:end].decode("latin-1").splitlines()
     for lineno, line in enumerate(lines, start=1):
         f = line.split()
+        if f and f[0] == "obj_info" and len(f) == 3:
+            info[f[1]] = f[2]
         if not f or f[0] in ("ply", "comment", "obj_info"):
             continue
         try:
@@ -107,7 +110,7 @@ def _ply_header(path: Path) -> dict:
             ) from None
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise FileFormatError(f"{path}: unknown PLY format {fmt!r}")
-    return {"format": fmt, "header_bytes": header_bytes, "elements": elements}
+    return {"format": fmt, "header_bytes": header_bytes, "elements": elements, "obj_info": info}
 
 
 def _check_ascii_size(path: Path, header: dict, size: int) -> int:
@@ -342,15 +345,35 @@ def points_plan(path: Path, affine=None) -> PointsPlan | None:
     spec = table.spec(
         path, offset=header["header_bytes"], encoding=header["format"],
         columns=[table.PLY_SCALARS[t] for _, t in vprops], rows=nvert,
-        wanted=[names.index(n) for n in want], affine=affine,
+        wanted=[names.index(n) for n in want], affine=affine, grid=_range_grid(header),
     )
     return PointsPlan(path, header, spec, want, [types[n] for n in want],
                       sum(c for _, c, _ in others))
 
 
+def _range_grid(header: dict):
+    """``(cells, columns)`` of an ASCII range scan's ``range_grid`` element right after its
+    vertices (Stanford/Cyberware scans: ``obj_info num_cols`` x ``num_rows`` cells, each listing
+    the vertices it holds), else None."""
+    elements, info = header["elements"], header.get("obj_info", {})
+    if header["format"] != "ascii" or len(elements) < 2:
+        return None
+    name, cells, props = elements[1]
+    if name != "range_grid" or len(props) != 1 or not isinstance(props[0][1], tuple):
+        return None
+    try:
+        cols, rows = int(info.get("num_cols", "")), int(info.get("num_rows", ""))
+    except ValueError:
+        return None
+    if cols <= 0 or rows <= 0 or cols * rows != cells or props[0][1][2] not in _PLY_INT_TYPES:
+        return None
+    return cells, cols
+
+
 def points_from_table(plan: PointsPlan, data) -> dict:
     """The arrays of a planned PLY file from its vertex table (a :class:`table.TableData`):
-    ``points`` (n, 3) float64, ``normals`` (n, 3) or None, ``colors`` (n, 3) in [0, 1] or None."""
+    ``points`` (n, 3) float64, ``normals`` (n, 3) or None, ``colors`` (n, 3) in [0, 1] or None,
+    ``grid`` (n, 2) int32 (each vertex's cell of a range scan's grid, -1: none) or None."""
     path = plan.path
     values, lines_after = data.values, data.lines_after
     if plan.header["format"] == "ascii" and lines_after < plan.other_rows:
@@ -359,7 +382,7 @@ def points_from_table(plan: PointsPlan, data) -> dict:
             f"{path}: truncated PLY: the header declares {nvert + plan.other_rows} data lines, "
             f"the file has {nvert + lines_after}"
         )
-    out = {"points": values[:, :3], "normals": None, "colors": None}
+    out = {"points": values[:, :3], "normals": None, "colors": None, "grid": data.grid}
     k = 3
     if "nx" in plan.names:
         out["normals"] = values[:, 3:6]
@@ -380,7 +403,8 @@ def core_error(path: Path, fmt: str, exc: Exception) -> FileFormatError:
         return FileFormatError(f"{path}: truncated PLY: {exc}")
     if isinstance(exc, table.MalformedData):
         kind = "ASCII PLY" if fmt == "ascii" else "PLY"
-        return FileFormatError(f"{path}: malformed {kind}: vertex {exc}")
+        what = "" if str(exc).startswith("range_grid") else "vertex "
+        return FileFormatError(f"{path}: malformed {kind}: {what}{exc}")
     return FileFormatError(f"{path}: could not read the PLY file ({exc})")
 
 
@@ -394,7 +418,9 @@ def read_ply(path: Path, sample, rng) -> PointCloud:
         (data,) = table.read([plan.spec])
     except (table.TruncatedData, table.MalformedData, RuntimeError) as exc:
         raise core_error(path, plan.header["format"], exc) from None
-    return point_cloud(path, **points_from_table(plan, data), sample=sample, rng=rng)
+    arrays = points_from_table(plan, data)
+    arrays.pop("grid")  # one scan's grid: used by registrations (conf.py), which know the scans
+    return point_cloud(path, **arrays, sample=sample, rng=rng)
 
 
 def _load_ply(path: Path, sample, rng) -> PointCloud:

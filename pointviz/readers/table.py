@@ -33,7 +33,8 @@ PCD_SCALARS = {
 
 
 def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: int,
-         wanted: list[int], exact_columns: bool = True, commas: bool = False, affine=None):
+         wanted: list[int], exact_columns: bool = True, commas: bool = False, affine=None,
+         grid: tuple[int, int] | None = None):
     """A ``_core.TableSpec``.
 
     Parameters
@@ -53,6 +54,9 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
         separate values too.
     affine : tuple of ((3, 3), (3,)) float, optional
         ``(m, t)``: positions ``p`` (rows) are returned as ``p @ m + t``.
+    grid : (cells, columns), optional
+        ASCII with a row count: the first ``cells`` lines after the rows are a PLY
+        ``range_grid`` of ``columns`` cells per grid row, read into :attr:`TableData.grid`.
     """
     s = _core.TableSpec()
     s.path = str(path)
@@ -68,6 +72,8 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
         s.transform = True
         s.affine = [float(v) for v in np.asarray(m, dtype=np.float64).reshape(9)] + [
             float(v) for v in np.asarray(t, dtype=np.float64).reshape(3)]
+    if grid is not None:
+        s.grid_cells, s.grid_cols = int(grid[0]), int(grid[1])
     return s
 
 
@@ -83,6 +89,8 @@ class TableData:
     lo, hi, mean : (3,) float64
         Bounds and mean of the positions (the first three wanted columns) as read, before the
         spec's affine map, over the rows whose three values are finite (``finite`` of them).
+    grid : (rows, 2) int32 or None
+        With a spec's ``grid``: each row's grid row and column (-1: in no cell).
     """
 
     values: np.ndarray
@@ -91,6 +99,7 @@ class TableData:
     hi: np.ndarray
     mean: np.ndarray
     finite: int
+    grid: np.ndarray | None = None
 
 
 def read(specs: list, threads: int = 0) -> list[TableData]:
@@ -105,5 +114,6 @@ def read(specs: list, threads: int = 0) -> list[TableData]:
     for d in _core.read_tables(list(specs), threads):
         n = int(d["finite"])
         out.append(TableData(d["values"], int(d["lines_after"]), np.array(d["lo"]),
-                             np.array(d["hi"]), np.array(d["sum"]) / max(n, 1), n))
+                             np.array(d["hi"]), np.array(d["sum"]) / max(n, 1), n,
+                             d.get("grid")))
     return out

@@ -38,12 +38,14 @@ double d2(const double *a, const double *b) {
            (a[2] - b[2]) * (a[2] - b[2]);
 }
 
-/// Brute force: the k nearest other points by (distance, index).
-std::vector<uint32_t> brute_row(const std::vector<double> &p, size_t i, uint32_t k) {
+/// Brute force: the k nearest other points by (distance, index); with `group`, among the points
+/// of i's group only (the oracle of the within-scan searches).
+std::vector<uint32_t> brute_row(const std::vector<double> &p, size_t i, uint32_t k,
+                                const std::vector<int32_t> *group = nullptr) {
     size_t n = p.size() / 3;
     std::vector<uint32_t> idx;
     for (size_t j = 0; j < n; ++j)
-        if (j != i) idx.push_back(uint32_t(j));
+        if (j != i && (!group || (*group)[j] == (*group)[i])) idx.push_back(uint32_t(j));
     std::sort(idx.begin(), idx.end(), [&](uint32_t a, uint32_t b) {
         double da = d2(&p[3 * i], &p[3 * size_t(a)]), db = d2(&p[3 * i], &p[3 * size_t(b)]);
         return da < db || (da == db && a < b);
@@ -146,6 +148,94 @@ void test_knn_within_groups_matches_brute_force() {
     CHECK(bad == 0, "within-group neighbours: %zu of %zu rows differ from brute force", bad, n);
 }
 
+/// A scan of the smooth surface z = 0.3 sin(1.3 x) + 0.2 x y on a sheared grid with 2.5x the
+/// spacing along rows as along columns (a surface seen obliquely): points, their cells.
+void grid_scan(int rows, int cols, double x0, double y0, std::vector<double> &p,
+               std::vector<int32_t> &cell, std::vector<int32_t> &group, int32_t g) {
+    for (int r = 0; r < rows; ++r)
+        for (int c = 0; c < cols; ++c) {
+            double x = x0 + 0.01 * c + 0.004 * r, y = y0 + 0.025 * r;
+            p.insert(p.end(), {x, y, 0.3 * std::sin(1.3 * x) + 0.2 * x * y});
+            cell.insert(cell.end(), {r, c});
+            group.push_back(g);
+        }
+}
+
+void test_grid_neighbours_match_brute_force_within_scan() {
+    // two overlapping scans of one surface (different grids), a third whose points have no
+    // cells, a fourth with two points in one cell (not a grid: searched in its tree), and a
+    // group of 5 points (neighbours among all points); stored in a shuffled order
+    std::vector<double> p0;
+    std::vector<int32_t> c0, g0;
+    grid_scan(40, 50, 0.0, 0.0, p0, c0, g0, 0);
+    grid_scan(30, 45, 0.003, 0.011, p0, c0, g0, 1);
+    grid_scan(12, 12, 0.1, 0.1, p0, c0, g0, 2);
+    grid_scan(12, 12, 0.2, 0.1, p0, c0, g0, 3);
+    size_t n = g0.size();
+    for (size_t i = 0; i < n; ++i) {
+        if (g0[i] == 2) c0[2 * i] = c0[2 * i + 1] = -1;
+        if (g0[i] == 3 && c0[2 * i] == 5 && c0[2 * i + 1] == 6) c0[2 * i + 1] = 7;
+    }
+    for (size_t i = 0; i < 5; ++i) {  // the small group
+        p0.insert(p0.end(), {0.5 + 0.01 * i, 0.3, 0.2});
+        c0.insert(c0.end(), {0, int32_t(i)});
+        g0.push_back(9);
+    }
+    n = g0.size();
+    std::vector<size_t> order(n);
+    std::iota(order.begin(), order.end(), size_t(0));
+    std::shuffle(order.begin(), order.end(), std::mt19937(5));
+    std::vector<double> p(3 * n);
+    std::vector<int32_t> cell(2 * n), group(n);
+    for (size_t i = 0; i < n; ++i) {
+        for (int a = 0; a < 3; ++a) p[3 * i + a] = p0[3 * order[i] + a];
+        for (int a = 0; a < 2; ++a) cell[2 * i + a] = c0[2 * order[i] + a];
+        group[i] = g0[order[i]];
+    }
+    const uint32_t k = 31;
+    KnnTree all(p.data(), n, 2);
+    std::vector<uint32_t> ref;
+    GridNeighbourStats st;
+    for (int threads : {1, 3}) {
+        NeighbourTable t = knn_within_grids(p.data(), n, group.data(), cell.data(), k, all,
+                                            threads, nullptr, &st);
+        CHECK(t.n == n && t.k == k, "grid table shape");
+        if (threads == 1)
+            ref = t.index;
+        else
+            CHECK(t.index == ref, "grid neighbours differ at %d threads", threads);
+    }
+    CHECK(st.from_grid + st.from_tree == n - 5, "grid stats: %zu + %zu of %zu", st.from_grid,
+          st.from_tree, n - 5);
+    // the grids' borders (a quarter of these small grids' points) may need more rings
+    CHECK(st.from_tree >= 2 * 144 && st.from_grid > (n - 5 - 2 * 144) * 8 / 10,
+          "grid stats: %zu from the grid, %zu from trees", st.from_grid, st.from_tree);
+    size_t bad = 0;
+    for (size_t i = 0; i < n; ++i) {
+        std::vector<uint32_t> want = group[i] == 9 ? brute_row(p, i, k) : brute_row(p, i, k, &group);
+        bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
+    }
+    CHECK(bad == 0, "grid neighbours: %zu of %zu rows differ from brute force within the scan",
+          bad, n);
+    // the normals from them equal those of the per-scan KD-trees
+    PointsView v;
+    v.points = p.data();
+    v.n = n;
+    v.group = group.data();
+    double eye[3] = {0.3, 0.3, 5.0};
+    v.viewpoints = eye;
+    v.n_viewpoints = 1;
+    Progress pr;
+    NormalOptions no;
+    OrientOptions oo;
+    NormalsOutput a = normals_points(v, no, oo, pr);
+    v.cell = cell.data();
+    NormalsOutput b = normals_points(v, no, oo, pr);
+    CHECK(a.est.normals == b.est.normals, "normals from grid neighbours differ from the trees'");
+    CHECK(b.grid.from_grid == st.from_grid, "normals' grid stats %zu, expected %zu",
+          b.grid.from_grid, st.from_grid);
+}
+
 void test_tiny_clouds() {
     double one[3] = {1, 2, 3};
     KnnTree t1(one, 1);
@@ -169,6 +259,8 @@ void test_identical_for_any_thread_count() {
     for (size_t i = 0; i < v.n; ++i) group[i] = int32_t(i % 4);
     std::vector<float> ref_n, ref_r, ref_gn;
     std::vector<double> ref_p;
+    std::vector<uint8_t> ref_keep;
+    std::vector<uint32_t> ref_label;
     for (int threads : {1, 2, 4}) {
         Progress pr;
         NormalOptions no;
@@ -183,11 +275,14 @@ void test_identical_for_any_thread_count() {
         vv.n_viewpoints = 1;
         FitOptions fo;
         fo.threads = threads;
-        FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr);
+        StrayOptions so;  // the stray clusters run beside the fit
+        so.threads = threads;
+        FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr, &so);
         vv.group = group.data();  // normals from each scan's own neighbours
         NormalsOutput gn = normals_points(vv, no, oo, pr);
         if (threads == 1) {
             ref_n = nr.est.normals, ref_r = r, ref_p = f.fit.points, ref_gn = gn.est.normals;
+            ref_keep = f.fit.keep, ref_label = f.stray.label;
             size_t outward = 0;
             for (size_t i = 0; i < v.n; ++i)
                 outward += ref_n[3 * i] * p[3 * i] + ref_n[3 * i + 1] * p[3 * i + 1] +
@@ -199,6 +294,8 @@ void test_identical_for_any_thread_count() {
             CHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
             CHECK(r == ref_r, "radii differ at %d threads", threads);
             CHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
+            CHECK(f.fit.keep == ref_keep && f.stray.label == ref_label,
+                  "kept points or components differ at %d threads", threads);
             CHECK(gn.est.normals == ref_gn, "per-scan normals differ at %d threads", threads);
         }
     }
@@ -338,6 +435,7 @@ int main() {
     test_knn_matches_brute_force();
     test_unsorted_rows_and_fused_radii();
     test_knn_within_groups_matches_brute_force();
+    test_grid_neighbours_match_brute_force_within_scan();
     test_tiny_clouds();
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();

@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <vector>
 
 #include "pointviz/progress.h"
@@ -17,6 +18,33 @@ namespace pointviz {
 constexpr uint32_t kNoIndex = 0xffffffffu;
 
 struct NeighbourTable;
+
+/// The k best (squared distance, index) pairs seen so far, kept sorted: k is small (<= 64), so
+/// insertion into a sorted array beats a binary heap.
+struct KnnHeap {
+    uint32_t k = 0, size = 0;
+    double *d2;
+    uint32_t *idx;
+    /// The squared distance a candidate must not exceed to matter.
+    double bound() const {
+        return size < k ? std::numeric_limits<double>::infinity() : d2[k - 1];
+    }
+    void push(double d, uint32_t i) {
+        if (size == k) {
+            if (d > d2[k - 1] || (d == d2[k - 1] && i > idx[k - 1])) return;
+        } else {
+            ++size;
+        }
+        uint32_t j = size - 1;
+        while (j > 0 && (d < d2[j - 1] || (d == d2[j - 1] && i < idx[j - 1]))) {
+            d2[j] = d2[j - 1];
+            idx[j] = idx[j - 1];
+            --j;
+        }
+        d2[j] = d;
+        idx[j] = i;
+    }
+};
 
 /// Static KD-tree over n points. Neighbours are ordered by (squared distance, index), so results
 /// do not depend on the tree's shape, the thread count or the order of the queries.
@@ -59,7 +87,7 @@ private:
     void build(struct KnnRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
                int spawn);
     void search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
-                struct KnnHeap &heap, uint32_t done_leaf) const;
+                KnnHeap &heap, uint32_t done_leaf) const;
     std::vector<double> pts_;     ///< (n, 3) points in tree order
     std::vector<uint32_t> ids_;   ///< input index of each stored point
     std::vector<double> split_;   ///< split coordinate per inner node (heap layout)

@@ -13,6 +13,7 @@
 #include "pointviz/orient.h"
 #include "pointviz/progress.h"
 #include "pointviz/radii.h"
+#include "pointviz/scan_neighbours.h"
 #include "pointviz/surface_fit.h"
 
 namespace pointviz {
@@ -24,6 +25,9 @@ struct PointsView {
     const double *viewpoints = nullptr;  ///< (1 or n, 3) scanner positions, or null
     size_t n_viewpoints = 0;
     const int32_t *group = nullptr;      ///< (n,) scan of each point, or null
+    /// (n, 2) row and column of each point in its scan's sampling grid (negative: none), or
+    /// null; with `group`, neighbours within a scan come from the grid (scan_neighbours.h)
+    const int32_t *cell = nullptr;
 };
 
 /// k nearest neighbours of every point (itself excluded) and their distances.
@@ -38,6 +42,7 @@ struct NormalsOutput {
     NormalResult est;
     OrientResult orient;
     size_t toward_viewpoint_flips = 0;
+    GridNeighbourStats grid;  ///< how the neighbours within scans were found (with cells)
 };
 NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
                              const OrientOptions &oopt, Progress &progress);

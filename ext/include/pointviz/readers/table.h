@@ -44,6 +44,11 @@ struct TableSpec {
     /// in the common frame of a registration as it is read.
     bool transform = false;
     std::array<double, 12> affine{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+    /// ASCII with a row count: the first `grid_cells` lines after the rows are a range scan's
+    /// grid (a PLY `range_grid` element: per cell, row-major with `grid_cols` cells per row, a
+    /// count and that many row indices), read into Table::grid. 0: none.
+    uint64_t grid_cells = 0;
+    uint32_t grid_cols = 0;
 };
 
 /// An allocator whose new elements are left uninitialised: the reader writes every value of a
@@ -101,6 +106,9 @@ struct Table {
     /// ASCII with a row count: lines after the rows (a last line without '\n' counts), which
     /// belong to the file's other elements.
     uint64_t lines_after = 0;
+    /// With TableSpec::grid_cells: (rows, 2) grid row and column of each row's cell, -1 for
+    /// rows in no cell; a row listed by several cells keeps the last.
+    std::vector<int32_t> grid;
     /// Of the positions (when at least three columns are wanted); sums are merged in row order,
     /// so they do not depend on the thread count.
     PositionStats positions;
