@@ -238,6 +238,74 @@ def frame_coverage(camera: CameraValue, points: np.ndarray) -> float:
     return len(np.unique(cells[:, 1] * gx + cells[:, 0])) / (gx * gy)
 
 
+class TailQuantiles:
+    """``np.quantile(v, (q, 1 - q))`` (method "linear") of a sequence of finite arrays of one
+    length whose values keep nearly the same order from one to the next, as the points'
+    projections do while :func:`_fill_frame` bisects the eye distance.
+
+    Each call remembers which entries were the lowest and the highest few (twice as many as the
+    quantiles need); the next call takes as its lower threshold the largest of those entries'
+    new values, so at least that many values lie at or below it, and each value left out lies
+    above all of them: the order statistics the lower quantile interpolates are found by
+    partitioning the few values below the threshold (likewise above). The result is numpy's,
+    bit for bit: the same order statistics, interpolated with numpy's formula.
+
+    Parameters
+    ----------
+    n : int
+        Length of the arrays.
+    q : float in (0, 0.5)
+        The lower quantile; the upper one is ``1 - q``.
+    """
+
+    def __init__(self, n: int, q: float):
+        self.n = int(n)
+        self.q = (float(q), 1.0 - float(q))
+        virtual = (self.n - 1) * np.asarray(self.q)      # numpy's "linear" virtual indices
+        below = np.floor(virtual).astype(np.int64)
+        self.i0, self.i1 = int(below[0]), int(below[1])
+        self.gamma = (virtual - below).tolist()
+        # the sequence's own search needs both pairs of order statistics inside the array
+        self.exact = self.n >= 4 and 0 <= self.i0 and self.i1 + 1 <= self.n - 1
+        # entries remembered at each end: twice the order statistics each side needs
+        self.keep_low = min(self.n, 2 * (self.i0 + 2))
+        self.keep_high = min(self.n, 2 * (self.n - self.i1))
+        self.low = self.high = None   # indices of the last call's lowest / highest entries
+        self.searched = 0             # values partitioned over all calls (for tests)
+
+    @staticmethod
+    def _lerp(a: float, b: float, t: float) -> float:
+        """numpy's linear interpolation between neighbouring order statistics (``_lerp``)."""
+        diff = b - a
+        return b - diff * (1.0 - t) if t >= 0.5 else a + diff * t
+
+    def _lowest(self, v: np.ndarray, sel: np.ndarray | None, ranks: tuple[int, int], keep: int):
+        """Values of ranks ``ranks`` among v[sel] (all of v if sel is None), and the indices
+        into v of its ``keep`` lowest."""
+        vals = v if sel is None else v[sel]
+        self.searched += len(vals)
+        order = np.argpartition(vals, sorted({*ranks, keep - 1}))
+        kept = order[:keep] if sel is None else sel[order[:keep]]
+        return float(vals[order[ranks[0]]]), float(vals[order[ranks[1]]]), kept
+
+    def __call__(self, v: np.ndarray) -> tuple[float, float]:
+        if not self.exact or len(v) != self.n:
+            lo, hi = np.quantile(v, self.q)
+            return float(lo), float(hi)
+        n, i0, i1 = self.n, self.i0, self.i1
+        sel_low = sel_high = None
+        if self.low is not None:
+            # at least keep_low values lie at or below this, and none left out lies below it
+            sel_low = np.flatnonzero(v <= v[self.low].max())
+            sel_high = np.flatnonzero(v >= v[self.high].min())
+        a0, b0, self.low = self._lowest(v, sel_low, (i0, i0 + 1), self.keep_low)
+        # the highest values, as the lowest of their negatives: v's rank r is rank n-1-r there
+        neg = -v
+        b1, a1, self.high = self._lowest(neg, sel_high, (n - 2 - i1, n - 1 - i1), self.keep_high)
+        a1, b1 = -a1, -b1
+        return self._lerp(a0, b0, self.gamma[0]), self._lerp(a1, b1, self.gamma[1])
+
+
 def _fill_frame(camera: CameraValue, pts: np.ndarray, outliers: float,
                 margin: float) -> CameraValue:
     """``camera`` moved along its view direction and sideways so that the points (all but
@@ -256,6 +324,8 @@ def _fill_frame(camera: CameraValue, pts: np.ndarray, outliers: float,
     # the points along the camera's axes once: each eye below only shifts them (155 calls on
     # a FIT_SAMPLE-point sample for a default fit)
     along_f, along_r, along_u = pts @ f, pts @ r, pts @ u
+    if q is not None:
+        tails_x, tails_y = TailQuantiles(len(pts), q[0]), TailQuantiles(len(pts), q[0])
 
     def bounds(eye):
         depth = along_f - eye @ f
@@ -264,7 +334,7 @@ def _fill_frame(camera: CameraValue, pts: np.ndarray, outliers: float,
         x, y = (along_r - eye @ r) / depth, (along_u - eye @ u) / depth
         if q is None:
             return x.min(), x.max(), y.min(), y.max()
-        (x0, x1), (y0, y1) = np.quantile(x, q), np.quantile(y, q)
+        (x0, x1), (y0, y1) = tails_x(x), tails_y(y)
         return x0, x1, y0, y1
 
     def place(d):
