@@ -291,6 +291,79 @@ def test_open3d_ui_answers_during_render_and_cancel_close_stop_worker(tmp_path):
     assert res["ended_after_close"] and res["worker_ended_on_close"]
 
 
+#: Seconds the heap-poisoned window below may take to open, draw and close (~5 s idle, under a
+#: minute at load 16); the draw it guards against never ended in the 2.5-5 minutes it was watched.
+POISONED_HEAP_TIMEOUT_S = 240
+
+#: Run in the viewer's process before every geometry upload: free heap chunks of every small
+#: size, each float slot holding a large value that grows with its offset. It is what a busy
+#: process's heap may hold when Open3D mallocs a vertex buffer (glibc hands the next malloc of
+#: that size the last chunk freed), so whatever Open3D leaves unwritten there is large.
+POISON_HEAP_SNIPPET = """
+import ctypes
+import numpy as np
+import open3d as o3d
+
+libc = ctypes.CDLL(None)
+libc.malloc.restype = ctypes.c_void_p
+libc.malloc.argtypes = [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+
+def poison_heap():
+    chunks = []
+    for size in range(64, 1024, 8):
+        floats = (np.arange(size // 4, dtype=np.float32) + 1) * 1e4
+        for _ in range(8):
+            p = libc.malloc(size)
+            ctypes.memmove(p, floats.ctypes.data, size)
+            chunks.append(p)
+    for p in reversed(chunks):
+        libc.free(p)
+
+Scene = o3d.visualization.rendering.Open3DScene
+_add_geometry = Scene.add_geometry
+def add_geometry(self, *args, **kwargs):
+    poison_heap()
+    return _add_geometry(self, *args, **kwargs)
+Scene.add_geometry = add_geometry
+"""
+
+
+@pytest.mark.gui
+@needs_display
+def test_open3d_preview_draws_and_closes_whatever_the_heap_held(tmp_path):
+    """The preview's ground quad must not depend on uninitialised memory. Open3D uploads a mesh
+    without texture coordinates with its per-vertex UVs unwritten (heap garbage), and its lit
+    material samples textures with anisotropic filtering: on Mesa's software rasteriser
+    (llvmpipe) large garbage UVs make every ground pixel loop over millions of texels, and the
+    window hangs in its first draw (what a loaded machine's test runs hit by chance). Here the
+    heap is filled with large floats before every upload, so such a draw would happen every
+    time: the window must open, draw and close within POISONED_HEAP_TIMEOUT_S."""
+    out = _python(f"""
+        import faulthandler
+        faulthandler.dump_traceback_later({POISONED_HEAP_TIMEOUT_S}, exit=True)
+        {POISON_HEAP_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        {CLOUD_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import json, threading, traceback
+        import pointviz
+        res = {{}}
+
+        def drive(v):
+            try:
+                for _ in range(3):                    # draw the preview (ground and splats)
+                    v.call(v.window.post_redraw, timeout={POISONED_HEAP_TIMEOUT_S})
+                res["ground"] = v.call(lambda: v.preview.scene.has_geometry("ground"))
+            except BaseException:
+                res["error"] = traceback.format_exc()
+            v.app.post_to_main_thread(v.window, v.window.close)
+
+        v = pointviz.view(cloud, ground="matte", width=96, height=72,
+                          on_ready=lambda v: threading.Thread(target=drive, args=(v,), daemon=True).start())
+        print("RESULT" + json.dumps(res))
+        """, tmp_path)
+    assert _driver_result(out)["ground"], "the preview showed no ground: nothing was tested"
+
+
 def test_worker_compare_renders_the_reconstructed_mesh_with_the_same_view():
     """The Compare-with-mesh action: the worker reconstructs (Poisson) and renders the mesh with
     the same camera and shading; on a sphere both pictures cover the same pixels."""

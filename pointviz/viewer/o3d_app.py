@@ -53,6 +53,14 @@ PREVIEW_AMBIENT = 15000.0
 PROGRESS_REDRAW_INTERVAL_S = 1.0
 #: Ground quad half size, in scene diagonals.
 GROUND_HALF_SIZE = 2.0
+#: The ground quad's texture coordinates are all GROUND_UV (the quad has no texture). They must
+#: be set: Open3D uploads a mesh without texture coordinates with its per-vertex UVs unwritten
+#: (whatever the heap held), and its lit material samples its blank textures with anisotropic
+#: filtering, which Mesa's software rasteriser (llvmpipe) does by looping over every texel of
+#: the pixel's footprint: large garbage UVs made that millions of texels per ground pixel, and
+#: the window hung in its first draw (seen under load, where the heap's contents vary).
+#: Constant UVs have no footprint at all.
+GROUND_UV = 0.0
 
 
 class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
@@ -311,6 +319,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         mesh = self.o3d.geometry.TriangleMesh(self.o3d.utility.Vector3dVector(verts),
                                               self.o3d.utility.Vector3iVector([[0, 1, 2], [0, 2, 3]]))  # facing up
         mesh.compute_vertex_normals()
+        mesh.triangle_uvs = self.o3d.utility.Vector2dVector(np.full((6, 2), GROUND_UV))
         mat = self.rendering.MaterialRecord()
         mat.shader = "defaultLit"
         mat.base_color = [0.62, 0.64, 0.68, 1.0] if ground == "matte" else [0.5, 0.54, 0.62, 1.0]
