@@ -454,7 +454,10 @@ def test_live_orbit_reports_and_its_still_frame_matches_a_direct_render(tmp_path
     shot = _load_png(tmp_path / "shot.png")
     x, y, w, h = report["rects"]["preview"]
     panel = shot[y:y + h, x:x + w].astype(np.float64)
-    assert panel.std() > NOT_BLANK_STD, "live viewport is blank"
+    assert panel.std() > NOT_BLANK_STD, (
+        f"live viewport is blank (std {panel.std():.1f}; the window measured "
+        f"{report['automation'].get('live_view_difference')} after "
+        f"{report['automation'].get('attempts')} grabs)")
     from pointviz.images import to_srgb8
 
     expected = to_srgb8(data["color"], float(data["exposure"])).astype(np.float64)
