@@ -29,10 +29,22 @@ with footprint fp, stop when
 + a_overhang * [|dot(axis, d)| <= spread] * 2 r / fp  <=  E``:
 a per-pixel error within E keeps the frame's mean within E.
 
+Secondary rays (``--secondary``): shadow and sky-visibility rays take the visibility model of
+``lod.h`` (a coarser node flips a ray's visibility with a chance proportional to its normal
+cone's sine; a flip costs the pixel that ray's share of it), one weight per kind of ray. Each
+kind is calibrated alone: on ``bench_lod.py``'s studio frames (480x360, 1 spp, shadows, sky
+occlusion, one reflection) at every distance, the budget frame (E = 0.005) with that kind's
+weight set to each value of SECONDARY_WEIGHTS and the other kind at full detail is compared
+(mean LDR-FLIP, at the reference's exposure) with the budget frame whose secondary rays all keep
+full detail: the error that kind's level of detail adds. The calibrated weight is the smallest
+one whose added error stays within KIND_SHARE x (E - floor) on every frame; the chart shows
+the added error against the weight.
+
 Examples
 --------
 python benchmarks/lod_budget.py --quick
 python benchmarks/lod_budget.py             # torus 1M (coloured), Armadillo 1M, dragon scans
+python benchmarks/lod_budget.py --secondary --out benchmarks/results/lod_budget/secondary
 """
 
 from __future__ import annotations
@@ -268,15 +280,131 @@ def fit(rows: list[dict]) -> dict:
             "corr": float(np.corrcoef(pred, flip)[0, 1]) if len(rows) > 2 else None}
 
 
+# ----------------------------------------------------------------------------------------------
+# secondary rays: the visibility model's weights
+
+
+#: Weights tried for each kind of visibility ray (lod.h, kShadowFlipWeight, kSkyFlipWeight).
+SECONDARY_WEIGHTS = (0.005, 0.0075, 0.01, 0.015, 0.02, 0.03)
+#: A weight that lets no node stop (the kind at full detail).
+NEVER = 1e9
+#: The budget the secondary frames are rendered with, its floor (lod.h, kBudgetFloor), and the
+#: share of E - floor each kind's added error may take on a calibration frame.
+SECONDARY_BUDGET, BUDGET_FLOOR, KIND_SHARE = 0.005, 0.0005, 0.25
+#: The kinds, as TraceOptions names their weights.
+KINDS = ("shadow", "sky")
+
+
+def measure_secondary(model, args) -> list[dict]:
+    """Per distance and kind: the error each weight adds to the budget frame."""
+    import bench_lod
+    import flip_evaluator
+    import pointviz
+
+    w, h = (pf.QUICK_PIXELS, pf.QUICK_PIXELS) if args.quick else (bench_lod.WIDTH, bench_lod.HEIGHT)
+    scene = pointviz.SurfelScene(model.cloud, variant="full", threads=args.threads)
+    opts = scene._options  # the weights ride on the scene's traversal options
+    base = pointviz.Camera.fit(model.cloud, width=w, height=h)
+    kw = dict(spp=1, shadows=True, reflections=1, threads=args.threads, lod_pixels="auto",
+              max_error=SECONDARY_BUDGET)
+
+    def frame(shadow: float, sky: float):
+        opts.shadow_flip_weight, opts.sky_flip_weight = shadow, sky
+        return pointviz.render(scene, cam, **kw)
+
+    rows = []
+    for factor in DISTANCES:
+        cam = pf.camera_at(base, factor)
+        full = pointviz.render(scene, cam, **{**kw, "lod_pixels": 0.0, "max_error": None})
+        ref = frame(NEVER, NEVER)
+        ref_img = ref.to_srgb8(exposure=full.exposure).astype(np.float32) / 255.0
+        for kind in KINDS:
+            for weight in SECONDARY_WEIGHTS:
+                fr = frame(weight, NEVER) if kind == "shadow" else frame(NEVER, weight)
+                img = fr.to_srgb8(exposure=full.exposure).astype(np.float32) / 255.0
+                added = float(flip_evaluator.evaluate(ref_img, img, pf.FLIP_RANGE,
+                                                      applyMagma=False)[1])
+                rows.append({"model": model.name, "factor": factor, "kind": kind,
+                             "weight": weight, "added_flip": added})
+                print(f"{model.name:<11}{factor:>5g}x {kind:<7} weight {weight:<7g} added FLIP "
+                      f"{added:.4f}", flush=True)
+    opts.shadow_flip_weight, opts.sky_flip_weight = scene_defaults()
+    return rows
+
+
+def scene_defaults() -> tuple[float, float]:
+    """The core's calibrated weights (TraceOptions' defaults)."""
+    from pointviz import _core
+
+    o = _core.TraceOptions()
+    return o.shadow_flip_weight, o.sky_flip_weight
+
+
+def fit_secondary(rows: list[dict]) -> dict:
+    """Per kind, the smallest weight whose added error fits KIND_SHARE x (E - floor) everywhere."""
+    limit = KIND_SHARE * (SECONDARY_BUDGET - BUDGET_FLOOR)
+    out = {"limit": limit, "core_defaults": dict(zip(KINDS, scene_defaults()))}
+    for kind in KINDS:
+        ok = [wt for wt in SECONDARY_WEIGHTS
+              if all(r["added_flip"] <= limit for r in rows if r["kind"] == kind and r["weight"] == wt)]
+        worst = {wt: max(r["added_flip"] for r in rows if r["kind"] == kind and r["weight"] == wt)
+                 for wt in SECONDARY_WEIGHTS}
+        out[kind] = {"weight": min(ok) if ok else None, "worst_added_flip": worst}
+    return out
+
+
+def main_secondary(args) -> int:
+    import bench_lod
+
+    models = [striped_torus(pf.QUICK_SIZE if args.quick else SIZE)]
+    models += pf.load_models(args, ["dragon-raw"], None)
+    models += pf.load_models(args, ["armadillo"], bench_lod.ARMADILLO_SIZE)
+    rows = []
+    for model in models:
+        rows += measure_secondary(model, args)
+    result_fit = fit_secondary(rows)
+    for kind in KINDS:
+        f = result_fit[kind]
+        print(f"{kind}: calibrated weight {f['weight']} (added FLIP <= {result_fit['limit']:.5f}); "
+              "worst added FLIP per weight " + ", ".join(f"{k:g}: {v:.4f}"
+                                                         for k, v in f["worst_added_flip"].items()))
+    result = {"benchmark": "lod_budget_secondary", "date": time.strftime("%Y-%m-%dT%H:%M:%S"),
+              "machine": pf.machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
+              "fit": result_fit, "rows": rows}
+    plt = pf.pyplot()
+    fig, axes = plt.subplots(1, len(KINDS), figsize=(5 * len(KINDS), 4), squeeze=False)
+    for ax, kind in zip(axes[0], KINDS):
+        for name in dict.fromkeys(r["model"] for r in rows):
+            for factor, marker in zip(DISTANCES, "os^"):
+                rr = [r for r in rows if r["kind"] == kind and r["model"] == name
+                      and r["factor"] == factor]
+                ax.semilogy([r["weight"] for r in rr], [max(r["added_flip"], 1e-5) for r in rr],
+                            marker + "-", ms=4, label=f"{name} {factor:g}x")
+        ax.axhline(result_fit["limit"], color="grey", lw=0.8)
+        ax.set_title(f"{kind} rays alone (E = {SECONDARY_BUDGET})")
+        ax.set_xlabel("weight")
+        ax.set_ylabel("added mean FLIP")
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    chart = pf.save_figure(fig, args.out, "lod_secondary_calibration.png")
+    path = pf.write_json(args.out, "lod_secondary.json", result)
+    print(f"\nwrote {path} and {chart.name}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Measure, fit, print; write JSON and a chart to benchmarks/results/lod_budget/."""
     p = pf.base_parser(__doc__.split("\n\n")[0], "lod_budget")
     p.set_defaults(threads=2)
+    p.add_argument("--secondary", action="store_true",
+                   help="calibrate the visibility model's weights of shadow and sky rays")
     args = p.parse_args(argv)
     probe = common.probe_pointviz()
     if not probe.available:
         print(probe.reason)
         return 2
+    if args.secondary:
+        return main_secondary(args)
     rows = []
     models = load(args)
     for model in models:

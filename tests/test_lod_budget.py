@@ -92,8 +92,10 @@ def test_budget_bounds_the_measured_error(torus_scene, factor):
 
 def test_budget_that_stops_nothing_is_full_detail_exactly():
     """A sphere of random colours: every node's colour term alone exceeds the default budget, so
-    no node may stop, even far away where the size share would stop them on a grey sphere; the
-    budget frame (shadows, reflections) then equals full detail bit for bit."""
+    no camera ray may stop, even far away where the size share would stop them on a grey sphere;
+    the budget frame then equals full detail bit for bit. Lit by the flat look, which casts no
+    shadow and samples no sky visibility: shadow and sky rays see no colour and take their own
+    model (test_visibility_rays_see_no_colour)."""
     rng = np.random.default_rng(11)
     s = shapes.sphere(60_000, 1.0)
     cloud = pointviz.PointCloud(np.asarray(s.points), normals=s.normals,
@@ -103,7 +105,7 @@ def test_budget_that_stops_nothing_is_full_detail_exactly():
     interior = na["count"] == 0
     # the precondition, from the node table: the colour term (lod.h) exceeds E - floor everywhere
     assert np.all(2.16 * 0.454 * na["colour_spread"][interior] > DEFAULT_MAX_ERROR - 0.0005)
-    kw = dict(spp=1, shadows=True, reflections=1, threads=2, seed=1)
+    kw = dict(spp=1, shadows=True, reflections=1, threads=2, seed=1, look="flat")
     for factor in (1.0, 7.5):
         cam = far_camera(cloud, factor)
         full = pointviz.render(scene, cam, lod_pixels=0, **kw)
@@ -116,6 +118,29 @@ def test_budget_that_stops_nothing_is_full_detail_exactly():
                                                             name="grey"), variant="full")
             rays = np.ascontiguousarray(cam.rays(), dtype=np.float64)
             assert np.any(grey.cast_rays(rays, camera=cam, lod_pixels="auto")["index"] == -2)
+
+
+@needs_flip
+def test_visibility_rays_see_no_colour():
+    """The confetti sphere under the studio look (a soft key light, sky visibility) at 7.5x: no
+    camera ray may stop (its colour term), but its shadow and sky rays see no colour and stop at
+    flat enough nodes clear of their origin; the frame then differs from full detail, within the
+    budget. The same frame's shadow and sky rays at full detail (their weights set so high that
+    no node fits) equal full detail bit for bit, so the difference is theirs."""
+    rng = np.random.default_rng(11)
+    s = shapes.sphere(60_000, 1.0)
+    cloud = pointviz.PointCloud(np.asarray(s.points), normals=s.normals,
+                                colors=rng.uniform(0, 1, (60_000, 3)), name="confetti")
+    scene = pointviz.SurfelScene(cloud, variant="full")
+    cam = far_camera(cloud, 7.5)
+    kw = dict(spp=1, shadows=True, reflections=1, threads=2, seed=1)
+    full = pointviz.render(scene, cam, lod_pixels=0, **kw)
+    auto = pointviz.render(scene, cam, lod_pixels="auto", **kw)
+    assert not np.array_equal(auto.color, full.color)
+    assert _flip(full, auto) <= DEFAULT_MAX_ERROR
+    scene._options.shadow_flip_weight = scene._options.sky_flip_weight = 1e9
+    kept = pointviz.render(scene, cam, lod_pixels="auto", **kw)
+    np.testing.assert_array_equal(kept.color, full.color)
 
 
 def test_budget_takes_level_of_detail_where_it_can():

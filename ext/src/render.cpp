@@ -139,19 +139,19 @@ constexpr uint32_t kDimsPerBounce = 64, kDimLights = 2, kDimGloss = 46, kDimOccl
 /// Lights beyond this many share random dimensions with the glossy lobe (still unbiased).
 constexpr uint32_t kMaxStratifiedLights = (kDimGloss - kDimLights) / 2;
 
-/// Footprint growth of a shadow ray toward `L` from a point `dist` away (inf: directional):
-/// the light's angular diameter. A shadow edge is blurred over that width anyway, so occluder
-/// detail finer than it is not seen; a hard light gives 0 and the ray keeps the width it starts
-/// with (the primary footprint at the hit).
-inline float shadow_spread(const Light &L, float dist) {
-    switch (L.type) {
-        case LightType::Directional: return 2.f * L.angle;
-        case LightType::Area: {
-            const float size = std::sqrt(length(cross(L.edge_u, L.edge_v)));
-            return dist > 0.f && dist < kInf ? size / dist : 0.f;
-        }
-        default: return dist > 0.f && dist < kInf ? 2.f * L.radius / dist : 0.f;
-    }
+/// Footprint growth of a shadow ray toward `L` from a point `dist` away (inf: directional), the
+/// ray's width at its origin being `width0` (the pixel's footprint there). A directional light's
+/// rays are parallel but for its angular diameter, which blurs a shadow edge over that angle:
+/// occluder detail finer than it is not seen. Toward a point or area light the beam converges
+/// from the pixel's footprint at the origin to the light's size at the light (a hard point
+/// light: to a point), so the width is width0 + t (size - width0) / dist, never negative on
+/// the ray's length.
+inline float shadow_spread(const Light &L, float dist, float width0) {
+    if (L.type == LightType::Directional) return 2.f * L.angle;
+    if (!(dist > 0.f && dist < kInf)) return 0.f;
+    const float size = L.type == LightType::Area ? std::sqrt(length(cross(L.edge_u, L.edge_v)))
+                                                 : 2.f * L.radius;
+    return (size - width0) / dist;
 }
 
 inline float srgb_to_linear(float c) {
@@ -243,6 +243,7 @@ struct ShadowRay {
     Vec3 add;
     uint32_t pixel;
     bool ground_blocks;   ///< false for sky-visibility rays: the ground is part of the sky model
+    RayKind kind;         ///< Shadow (toward a light) or Sky (sky visibility)
     /// false: no object lies within the ray's length of its origin (nor does the ground block
     /// it), so it is not blocked and `ray` is not even set.
     bool may_hit = true;
@@ -351,7 +352,7 @@ public:
 private:
     /// Closest hits of rays_ with the objects (those of the rays that can reach each) and
     /// the ground. Returns how many ray-object queries were made.
-    uint64_t intersect(std::vector<Nearest> &near) {
+    uint64_t intersect(std::vector<Nearest> &near, RayKind kind) {
         const size_t n = rays_.size();
         near.assign(n, Nearest{SurfaceHit{}, -1});
         uint64_t traced = 0;
@@ -370,7 +371,7 @@ private:
             if (m == 0) continue;
             traced += m;
             tmp_.resize(m);
-            scene_.objects[o].geometry->intersect(batch_.data(), m, tmp_.data());
+            scene_.objects[o].geometry->intersect_as(batch_.data(), m, tmp_.data(), kind);
             for (size_t k = 0; k < m; ++k) {
                 const uint32_t i = index_[k];
                 if (tmp_[k].t < near[i].hit.t) near[i] = {tmp_[k], int(o)};
@@ -427,7 +428,7 @@ private:
 
     void trace_bounce(int bounce, int x0, int y0, int tw) {
         std::vector<Nearest> &near = near_;
-        const uint64_t traced = intersect(near);
+        const uint64_t traced = intersect(near, bounce == 0 ? RayKind::Camera : RayKind::Reflection);
         clock_.lap(bounce == 0 ? kPrimary : kReflection);
         (bounce == 0 ? stats_.primary_traced : stats_.reflection_traced) += traced;
         shadows_.clear();
@@ -503,6 +504,7 @@ private:
                     sr.add = ambient_add * (1.f / float(n_occ));
                     sr.pixel = pr.pixel;
                     sr.ground_blocks = false;
+                    sr.kind = RayKind::Sky;
                     sr.may_hit = false;
                 }
             } else {
@@ -522,6 +524,7 @@ private:
                     sr.add = ambient_add * (1.f / float(n_occ));
                     sr.pixel = pr.pixel;
                     sr.ground_blocks = false;
+                    sr.kind = RayKind::Sky;
                 }
             }
             for (size_t li = 0; li < scene_.lights.size(); ++li) {
@@ -567,10 +570,11 @@ private:
                 sr.ray.tmin = tmin;
                 sr.ray.tmax = dist == kInf ? kInf : std::max(0.f, dist * (1.f - 1e-4f) - set_.offsets.normal_offset * scale);
                 sr.ray.width0 = r.footprint(h.t);
-                sr.ray.spread = sr.ray.width0 > 0.f ? shadow_spread(L, dist) : 0.f;
+                sr.ray.spread = sr.ray.width0 > 0.f ? shadow_spread(L, dist, sr.ray.width0) : 0.f;
                 sr.add = add;
                 sr.pixel = pr.pixel;
                 sr.ground_blocks = true;
+                sr.kind = RayKind::Shadow;
             }
             if (reflects) {
                 Vec3 rd = reflect(r.d, n);
@@ -610,21 +614,29 @@ private:
         for (size_t o = 0; o < scene_.objects.size(); ++o) {
             if (live.empty()) break;
             const Reach &reach = reach_[o];
-            batch_.clear();
-            index_.clear();   // positions in `live` of the rays that can reach the object
-            for (size_t k = 0; k < live.size(); ++k) {
-                const ShadowRay &s = shadows_[live[k]];
-                const Ray &r = s.ray;
-                if (!s.may_hit || (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax))) continue;
-                batch_.push_back(r);
-                index_.push_back(uint32_t(k));
+            // one batch per kind of ray: the level of detail's error model depends on it
+            bool any = false;
+            for (const RayKind kind : {RayKind::Shadow, RayKind::Sky}) {
+                batch_.clear();
+                index_.clear();   // positions in `live` of the rays that can reach the object
+                for (size_t k = 0; k < live.size(); ++k) {
+                    const ShadowRay &s = shadows_[live[k]];
+                    const Ray &r = s.ray;
+                    if (s.kind != kind || !s.may_hit ||
+                        (reach.known && !meets(reach, r.o, r.d, r.tmin, r.tmax)))
+                        continue;
+                    batch_.push_back(r);
+                    index_.push_back(uint32_t(k));
+                }
+                if (batch_.empty()) continue;
+                any = true;
+                traced += batch_.size();
+                tmp.assign(batch_.size(), 0);
+                scene_.objects[o].geometry->occluded_as(batch_.data(), batch_.size(), tmp.data(), kind);
+                for (size_t k = 0; k < batch_.size(); ++k)
+                    if (tmp[k]) blocked[live[index_[k]]] = 1;
             }
-            if (batch_.empty()) continue;
-            traced += batch_.size();
-            tmp.assign(batch_.size(), 0);
-            scene_.objects[o].geometry->occluded(batch_.data(), batch_.size(), tmp.data());
-            for (size_t k = 0; k < batch_.size(); ++k)
-                if (tmp[k]) blocked[live[index_[k]]] = 1;
+            if (!any) continue;
             size_t w = 0;
             for (size_t k = 0; k < live.size(); ++k)
                 if (!blocked[live[k]]) live[w++] = live[k];

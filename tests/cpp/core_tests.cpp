@@ -618,6 +618,37 @@ void test_lod_budget() {
     wide.cone_q = kConeNeverQ;
     CHECK(!LodGate{}.passes(wide), "the open gate let a node without a cone through");
 
+    // The visibility model (shadow and sky rays): no colour term, never within the clearance
+    // of the ray's origin, never beyond the extent, never with max_error 0; its gate is a
+    // necessary condition and tight.
+    {
+        const float budget = 0.005f - kBudgetFloor, w = kShadowFlipWeight;
+        const float far2 = std::pow((2.f + kVisibilityClearance) * 1.f, 2.f);
+        const float near2 = std::pow((1.f + kVisibilityClearance) * 0.99f, 2.f);
+        CHECK(visibility_allows(striped, 1.f, far2, budget, w), "a flat striped node refused a shadow ray");
+        CHECK(!visibility_allows(flat, 1.f, near2, budget, w), "stopped within the clearance");
+        CHECK(!visibility_allows(flat, 2.f / (kBudgetMaxExtent * 1.01f), far2, budget, w),
+              "visibility: stopped beyond the extent");
+        CHECK(!visibility_allows(flat, 1.f, far2, -kBudgetFloor, w), "visibility: budget 0 stopped");
+        for (float e : {0.f, 0.002f, 0.005f, 0.01f, 1.f})
+            for (float wt : {kShadowFlipWeight, kSkyFlipWeight, 0.f}) {
+                const float b = e - kBudgetFloor;
+                const LodGate gate = visibility_gate(b, wt);
+                CHECK(gate.colour_max == 255, "visibility gate bounds the colour");
+                if (gate.cone_max < int32_t(kConeNeverQ) - 1)
+                    CHECK(flip_term(wt, Node::decode_cone(uint32_t(gate.cone_max + 1))) > b,
+                          "E %g w %g: visibility cone bound %d not tight", e, wt, gate.cone_max);
+                for (uint32_t cq = 0; cq < kConeNeverQ; cq += (cq < 4000 ? 3 : 401)) {
+                    Node nd = flat;
+                    nd.cone_q = uint16_t(cq);
+                    if (gate.passes(nd)) continue;
+                    for (float fp : {0.01f, 1.f, 100.f})
+                        CHECK(!visibility_allows(nd, fp, 1e6f, b, wt),
+                              "E %g w %g: gate refused cone %u the model allows", e, wt, cq);
+                }
+            }
+    }
+
     // Rays through the budget traversal stay clean (finite, unit normals, in range); with
     // max_error 0 they equal full detail exactly.
     auto rays = random_rays(g, 400, zero, 5.0, 1.0);

@@ -36,6 +36,55 @@ constexpr float kBudgetFloor = 0.0005f;
 /// node could hide a silhouette its spread does not predict.
 constexpr float kBudgetMaxExtent = 8.f;
 
+/// What a ray is for. The budget's error model depends on it: a camera or reflection ray's hit
+/// is a colour and a normal (the predictor above), a shadow or sky-visibility ray's hit is one
+/// bit of visibility, which a coarser node flips only where its disks stand off the surface.
+enum class RayKind : uint8_t {
+    Camera = 0,      ///< camera rays, and queries that do not say which kind their rays are
+    Shadow = 1,      ///< toward a light's sampled point: visibility of the light
+    Sky = 2,         ///< sky visibility (ambient occlusion): visibility of a sampled solid angle
+    Reflection = 3,  ///< mirror and glossy reflections: a closest hit seen through the surface
+};
+constexpr int kRayKinds = 4;
+
+/// The visibility model (shadow and sky-visibility rays under the budget). A node's two LoD
+/// disks stand off the surface they replace by up to its diameter times the sine of its normal
+/// cone; a ray's visibility flips only where it passes through that band, so the chance that a
+/// ray reaching a stopped node is flipped is proportional to the cone's sine (the band over the
+/// node: the footprint does not enter), and what a flip costs the pixel is that ray's share of
+/// it. A node stops when kBudgetScale * weight * sine <= the pixel's budget (no budget_scale:
+/// shadows fall outside the object's pixels), the weight being the kind's mean FLIP per unit
+/// sine. A shadow ray carries the light's whole direct term, a sky-visibility ray one sample's
+/// share of the ambient term.
+///
+/// Calibrated once per kind, each alone (benchmarks/lod_budget.py --secondary; benchmarks/
+/// README.md, "Issue 18, secondary rays"): on the studio frames of the striped torus (1M), the
+/// dragon's raw scans and the Armadillo (1M) at 1x, 2.5x and 7.5x, E = 0.005, the smallest
+/// weight whose added FLIP stays within a quarter of E - floor (0.0011) on every frame. The
+/// worst frames are at the framing distance (torus 1x for shadow rays: 0.0009 at 0.03; dragon
+/// 1x for sky rays: 0.0006 at 0.015). A model with the band measured in footprints (weight *
+/// sine * size / footprint: coarse nodes cheaper in a wide beam) was tried and refused: with
+/// the sky rays' wide cone it let nearly every node stop and cost the dragon 0.0037 at 1x at
+/// any weight that gave speed.
+///
+/// Visibility rays see no colour: the colour term does not apply. A node near the ray's origin
+/// never stops (kVisibilityClearance): there the ray grazes the surface it leaves, and a disk
+/// standing off it would shadow that surface (self-shadowing), which the band model does not
+/// describe. On a convex surface of curvature radius R a ray leaving at any angle is
+/// (G r)^2 / 2R above it G radii away, and a node's disk stands off by about r^2 / 4R: G = 2
+/// leaves a factor 8.
+constexpr float kShadowFlipWeight = 0.03f;
+constexpr float kSkyFlipWeight = 0.015f;
+/// A node stops for a visibility ray only when its sphere is at least this many of its radii
+/// from the ray's origin.
+constexpr float kVisibilityClearance = 2.f;
+/// The sampled solid angle of a sky-visibility ray, as a cone's growth per unit distance: a
+/// camera hit samples the cosine-weighted hemisphere with two rays, each standing for half of
+/// its projected solid angle pi, i.e. a disk of radius 1/sqrt(2) at unit distance (a
+/// reflection's single ray stands for more: this is the narrower of the two).
+constexpr float kSkyConeSpread = 1.41421356f;
+
+
 POINTVIZ_ISA_BEGIN
 
 /// The predictor's colour term for a colour spread, as budget_allows compares it.
@@ -68,6 +117,25 @@ inline bool budget_allows(const Node &nd, float fp, float budget, float size_pix
     const float colour = colour_term(nd.colour_spread());
     if (colour > budget) return false;
     return size <= size_pixels * fp || colour + spread_term(nd.cone()) <= budget;
+}
+
+
+/// The visibility model's predicted error for a cone's sine (2: no cone), `weight` the kind's
+/// (kShadowFlipWeight, kSkyFlipWeight, or TraceOptions' calibration override).
+inline float flip_term(float weight, float cone) { return kBudgetScale * weight * std::min(cone, 1.f); }
+
+/// Whether a visibility ray may stop at `nd`, seen with footprint `fp` at its centre, `dist2`
+/// the squared distance of its centre from the ray's origin, `budget` the pixel's error above
+/// the floor, `weight` its kind's:
+/// * never above kBudgetMaxExtent footprints (the calibrated range);
+/// * never within kVisibilityClearance radii of the origin (self-shadowing);
+/// * the visibility model's predicted error must fit (no colour term).
+inline bool visibility_allows(const Node &nd, float fp, float dist2, float budget, float weight) {
+    const float size = 2.f * nd.radius;
+    if (!(size <= kBudgetMaxExtent * fp)) return false;
+    const float clear = (1.f + kVisibilityClearance) * nd.radius;
+    if (!(dist2 >= clear * clear)) return false;
+    return flip_term(weight, nd.cone()) <= budget;
 }
 
 /// Largest q in [0, hi] with fits(q), fits non-increasing in q (true up to some q, false after);
@@ -115,6 +183,20 @@ inline LodGate budget_gate(float budget, float size_pixels) {
         const float cguess = budget > 0.f ? kConeScale * std::min(budget / s, 2.f) : -1.f;
         g.cone_max = largest_fitting(int32_t(cguess), int32_t(kConeNeverQ) - 1, cone_fits);
     }
+    return g;
+}
+
+/// The gate of visibility_allows for `budget` and `weight`: no colour bound (a visibility ray
+/// sees none); the cone bound of the flip term.
+inline LodGate visibility_gate(float budget, float weight) {
+    LodGate g;
+    const auto cone_fits = [budget, weight](int32_t q) {
+        return flip_term(weight, Node::decode_cone(uint32_t(q))) <= budget;
+    };
+    const float s = flip_term(weight, 1.f);
+    const float cguess = budget > 0.f && s > 0.f ? kConeScale * std::min(budget / s, 2.f)
+                                                 : budget > 0.f ? 2.f * kConeScale : -1.f;
+    g.cone_max = largest_fitting(int32_t(cguess), int32_t(kConeNeverQ) - 1, cone_fits);
     return g;
 }
 

@@ -55,6 +55,13 @@ struct TraceOptions {
     /// Traverse the wide tree (wide.h, wide_trace.h): two levels' bounds tested at once with
     /// SIMD, the binary traversal's decisions. false: the binary traversal, for comparison.
     bool wide = true;
+    /// Budget only: what the batch's secondary rays (width0 > 0) are for, which picks their
+    /// error model (lod.h, RayKind); Camera: not said (the predictor's share, as for any ray).
+    RayKind kind = RayKind::Camera;
+    /// Budget only: the visibility model's weights of shadow and sky-visibility rays (lod.h;
+    /// the defaults are the calibrated ones, benchmarks/lod_budget.py --secondary varies them).
+    float shadow_flip_weight = kShadowFlipWeight;
+    float sky_flip_weight = kSkyFlipWeight;
 };
 
 POINTVIZ_ISA_BEGIN
@@ -77,11 +84,21 @@ struct LodGates {
     LodGate primary, secondary;
     const LodGate &of(const Ray &ray) const { return ray.width0 > 0.f ? secondary : primary; }
 };
+/// Whether the batch's secondary rays take the visibility model (lod.h): shadow and
+/// sky-visibility rays.
+inline bool visibility_kind(const TraceOptions &opt) {
+    return opt.kind == RayKind::Shadow || opt.kind == RayKind::Sky;
+}
+inline float flip_weight(const TraceOptions &opt) {
+    return opt.kind == RayKind::Sky ? opt.sky_flip_weight : opt.shadow_flip_weight;
+}
 inline LodGates lod_gates(const TraceOptions &opt) {
     LodGates g;
     if (opt.lod_criterion == LodCriterion::Budget) {
         g.primary = budget_gate(ray_budget(false, opt), ray_size_share(false, opt));
-        g.secondary = budget_gate(ray_budget(true, opt), ray_size_share(true, opt));
+        g.secondary = visibility_kind(opt)
+                          ? visibility_gate(ray_budget(true, opt), flip_weight(opt))
+                          : budget_gate(ray_budget(true, opt), ray_size_share(true, opt));
     }
     return g;
 }
@@ -91,6 +108,12 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
     const float size = 2.f * nd.radius;
     if (opt.lod_criterion == LodCriterion::Budget) {
         const bool secondary = ray.width0 > 0.f;
+        if (secondary && visibility_kind(opt)) {
+            // a sky-visibility ray stands for a solid angle: its cone joins the pixel's beam
+            const float fp = ray.footprint(t2) + (opt.kind == RayKind::Sky ? kSkyConeSpread * t2 : 0.f);
+            return visibility_allows(nd, fp, length2(nd.c - ray.o), ray_budget(true, opt),
+                                     flip_weight(opt));
+        }
         return budget_allows(nd, ray.footprint(t2), ray_budget(secondary, opt),
                              ray_size_share(secondary, opt));
     }
