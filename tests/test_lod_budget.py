@@ -143,6 +143,17 @@ def test_visibility_rays_see_no_colour():
     np.testing.assert_array_equal(kept.color, full.color)
 
 
+def test_budget_frames_identical_for_any_thread_count(torus_scene):
+    """Budget frames, where camera, shadow and sky rays all take level of detail (the torus at
+    2.5x, jittered samples, one reflection), are the same bits on 1, 2 and 3 threads."""
+    cam = far_camera(torus_scene.cloud, 2.5)
+    kw = dict(spp=2, shadows=True, reflections=1, seed=5, lod_pixels="auto", max_error=0.01)
+    frames = [pointviz.render(torus_scene, cam, threads=t, **kw) for t in (1, 2, 3)]
+    for fr in frames[1:]:
+        for key in ("color", "depth", "normal", "alpha"):
+            np.testing.assert_array_equal(getattr(fr, key), getattr(frames[0], key))
+
+
 def test_budget_takes_level_of_detail_where_it_can():
     """A flat uniformly coloured plane seen from afar: the budget stops at nodes (LoD disks show
     in the hit indices) and the hits stay on the plane; a curved striped torus at the same
