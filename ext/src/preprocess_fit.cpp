@@ -23,6 +23,11 @@ constexpr double kSameSideCos = 0.0;
 /// nearest first: it varies with the curvature, slowly, while each point's own estimate carries
 /// the noise of its quadric's second-order terms.
 constexpr uint32_t kPullSupport = 32;
+/// With more than one pass, the points the last pass fits: those a thinning at this fraction
+/// of FitOptions::thin keeps, on the previous pass's positions (a smaller radius than the final
+/// thinning's, so that the final one, on the last pass's positions, finds its points among
+/// them).
+constexpr double kEarlyThin = 0.8;
 /// Largest number of unknowns of a fit.
 constexpr int kMaxTerms = 6;
 /// A Cholesky pivot below this fraction of the matrix's largest diagonal entry means the
@@ -297,14 +302,24 @@ void give_back_pull(FitResult &res, const NeighbourTable &nb, const std::vector<
 
 /// Greedy thinning of the fitted points `res` (positions and normals as fitted so far): visiting
 /// the points seen most head-on first (then by index), a point is dropped when a kept point
-/// lies within opt.thin x its spacing. Sets res.keep and res.kept.
+/// lies within `thin` x its spacing. `among` (null: every point): only these points are
+/// visited; the others are dropped. Sets res.keep and res.kept.
 void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoints,
-                 size_t n_viewpoints, const FitOptions &opt, Progress *progress) {
+                 size_t n_viewpoints, double thin, const std::vector<uint32_t> *among,
+                 int threads, Progress *progress) {
     size_t n = nb.n;
+    std::vector<uint32_t> order;
+    if (among) {
+        order = *among;
+    } else {
+        order.resize(n);
+        std::iota(order.begin(), order.end(), 0u);
+    }
     std::vector<double> priority(n, 0.0);
     if (viewpoints) {
-        parallel_for(n, 4096, opt.threads, [&](size_t b, size_t e, int) {
-            for (size_t i = b; i < e; ++i) {
+        parallel_for(order.size(), 4096, threads, [&](size_t b, size_t e, int) {
+            for (size_t a = b; a < e; ++a) {
+                size_t i = order[a];
                 const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
                 const double *q = res.points.data() + 3 * i;
                 const float *nn = res.normals.data() + 3 * i;
@@ -315,13 +330,11 @@ void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoi
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
-    std::vector<uint32_t> order(n);
-    std::iota(order.begin(), order.end(), 0u);
     std::stable_sort(order.begin(), order.end(),
                      [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
     std::fill(res.keep.begin(), res.keep.end(), 0);
     for (uint32_t i : order) {
-        double r2 = opt.thin * opt.thin * res.spacing[i] * res.spacing[i];
+        double r2 = thin * thin * res.spacing[i] * res.spacing[i];
         const uint32_t *row = nb.row(i);
         const double *q = res.points.data() + 3 * size_t(i);
         bool redundant = false;
@@ -377,10 +390,11 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     const bool unpull = opt.quadric && passes > 1;
     std::vector<double> pull(unpull ? n : 0, 0.0);
     std::vector<uint8_t> last(unpull ? n : 0, kNotMoved);
-    // With more than one pass the thinning runs before the last one, on the previous pass's
-    // positions and normals, and the last pass fits only the points kept (over all points'
-    // positions): where scans overlap most points are dropped, and their last fit would be
-    // thrown away.
+    // With more than one pass a first thinning (at kEarlyThin x the radius) runs before the
+    // last pass, on the previous pass's positions and normals, and the last pass fits only the
+    // points it keeps (over all points' positions): where scans overlap most points are
+    // dropped, and their last fit would be thrown away. The thinning proper then runs among
+    // those points on their final positions and normals.
     const bool thin = opt.thin > 0;
     const bool thin_early = thin && passes > 1;
     std::vector<uint32_t> active;  // the points the last pass fits (thin_early)
@@ -396,7 +410,8 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
         bool final_pass = pass == passes - 1;
         bool quadric = opt.quadric && final_pass;
         if (final_pass && thin_early) {
-            thin_points(res, nb, viewpoints, n_viewpoints, opt, progress);
+            thin_points(res, nb, viewpoints, n_viewpoints, kEarlyThin * opt.thin, nullptr,
+                        opt.threads, progress);
             active.reserve(res.kept);
             for (size_t i = 0; i < n; ++i)
                 if (res.keep[i]) active.push_back(uint32_t(i));
@@ -431,7 +446,9 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
             res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    if (thin && !thin_early) thin_points(res, nb, viewpoints, n_viewpoints, opt, progress);
+    if (thin)
+        thin_points(res, nb, viewpoints, n_viewpoints, opt.thin, thin_early ? &active : nullptr,
+                    opt.threads, progress);
     return res;
 }
 
