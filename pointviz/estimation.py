@@ -452,6 +452,9 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
     where the points do, on average, not inside convex parts. Then, visiting the points seen most head-on first (by their
     viewpoints), a point is dropped when a kept point lies within ``thin`` x its spacing in its
     own scan: where scans overlap about one layer remains, a single scan keeps all its points.
+    With ``passes`` > 1 the last pass fits only the points that a first, narrower thinning
+    (0.8 x the radius, on the positions the pass before it left) keeps; the thinning proper
+    then runs among those.
     With ``strays``, the points of stray clusters (see :func:`stray_clusters`) are not kept
     either.
 

@@ -162,9 +162,19 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
     NeighbourTable t = knn_all(sp.tree, sp.view.points, k, fopt.threads, &progress);
     FitOutput out;
     const PointsView &v = sp.view;
+    std::vector<float> nrm;
+    const uint32_t *support = nullptr;
+    if (normals) {
+        nrm = sp.to_tree(normals, 3);
+    } else {
+        out.normals = normals_from_table(sp.view, sp.tree, &t, nopt, oopt, progress);
+        nrm = out.normals.est.normals;
+        support = out.normals.est.support.data();
+    }
     // the stray clusters (the components of the input's neighbour graph: the fit moves points
-    // apart) on a thread of their own beside the normals and the fit: mostly a serial
-    // union-find, which would otherwise leave the other cores idle after the fit
+    // apart) on a thread of their own beside the fit: mostly a serial union-find, which would
+    // otherwise leave the other cores idle after the fit. Started after the normals, so that it
+    // runs while the fit's thinning (serial too) leaves a core free.
     std::exception_ptr stray_error;
     std::thread stray_worker;
     if (sopt)
@@ -183,15 +193,6 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
             if (t.joinable()) t.join();
         }
     } join{stray_worker};
-    std::vector<float> nrm;
-    const uint32_t *support = nullptr;
-    if (normals) {
-        nrm = sp.to_tree(normals, 3);
-    } else {
-        out.normals = normals_from_table(sp.view, sp.tree, &t, nopt, oopt, progress);
-        nrm = out.normals.est.normals;
-        support = out.normals.est.support.data();
-    }
     out.fit = fit_surface(v.points, nrm.data(), support, t, v.group, v.viewpoints, v.n_viewpoints,
                           fopt, &progress);
     if (!normals) normals_to_input(sp, out.normals);

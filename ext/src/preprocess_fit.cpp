@@ -23,6 +23,11 @@ constexpr double kSameSideCos = 0.0;
 /// nearest first: it varies with the curvature, slowly, while each point's own estimate carries
 /// the noise of its quadric's second-order terms.
 constexpr uint32_t kPullSupport = 32;
+/// With more than one pass, the points the last pass fits: those a thinning at this fraction
+/// of FitOptions::thin keeps, on the previous pass's positions (a smaller radius than the final
+/// thinning's, so that the final one, on the last pass's positions, finds its points among
+/// them).
+constexpr double kEarlyThin = 0.8;
 /// Largest number of unknowns of a fit.
 constexpr int kMaxTerms = 6;
 /// A Cholesky pivot below this fraction of the matrix's largest diagonal entry means the
@@ -58,31 +63,63 @@ bool solve_spd(double m[kMaxTerms][kMaxTerms], double *r, int t) {
     return true;
 }
 
-/// Feature rows (1, u, v, u^2, uv, v^2) of a neighbourhood's points and their heights z.
-struct FitRows {
-    double f[kMaxTerms];
-    double z;
+/// A neighbour's tangential coordinates (u, v) and height z in the frame of the point's normal;
+/// the fit's features are (1, u, v, u^2, uv, v^2).
+struct FitRow {
+    double u, v, z;
 };
 
-/// Weighted least squares of z on the first `T` terms of the rows' features. Every product is
-/// formed as (w f_a) f_b, in the order of the points, as the plain triple loop would: the fit
-/// does not depend on how this loop is arranged. Points of weight 0 add exactly nothing.
+/// The normal equations of a weighted least-squares fit: m (symmetric, both halves filled) and
+/// the right-hand side r.
+struct NormalEquations {
+    double m[kMaxTerms][kMaxTerms];
+    double r[kMaxTerms];
+};
+
+/// Exponents (of u, of v) of the features.
+constexpr int kPowU[kMaxTerms] = {0, 1, 0, 2, 1, 0};
+constexpr int kPowV[kMaxTerms] = {0, 0, 1, 0, 1, 2};
+
+/// Accumulates the normal equations of the first `T` features (3: a plane, 6: a quadric) over
+/// the rows, in the order of the points. Each entry of m is a weighted moment sum w u^p v^q
+/// (p + q <= 4 for the quadric: 15 distinct sums for its 21 entries), each product formed
+/// from the previous one (w, w u, w u^2, ...). Points of weight 0 add exactly nothing.
 template <int T>
-bool fit_terms(const FitRows *rows, const double *w, uint32_t k, double *coef) {
-    double m[kMaxTerms][kMaxTerms] = {};
+void accumulate(const FitRow *rows, const double *w, uint32_t k, NormalEquations &eq) {
+    // mom[p][q] = sum of w u^p v^q
+    double mom[5][5] = {};
     double r[kMaxTerms] = {};
     for (uint32_t j = 0; j < k; ++j) {
-        if (w[j] == 0.0) continue;
-        const double *f = rows[j].f;
-        double wf[T];
-        for (int a = 0; a < T; ++a) wf[a] = w[j] * f[a];
-        for (int a = 0; a < T; ++a) {
-            r[a] += wf[a] * rows[j].z;
-            for (int b = 0; b <= a; ++b) m[a][b] += wf[a] * f[b];
+        const double wj = w[j];
+        if (wj == 0.0) continue;
+        const double u = rows[j].u, v = rows[j].v, z = rows[j].z;
+        const double wu = wj * u, wv = wj * v;
+        mom[0][0] += wj, mom[1][0] += wu, mom[0][1] += wv;
+        const double wuu = wu * u, wuv = wu * v, wvv = wv * v;
+        mom[2][0] += wuu, mom[1][1] += wuv, mom[0][2] += wvv;
+        r[0] += wj * z, r[1] += wu * z, r[2] += wv * z;
+        if constexpr (T == kMaxTerms) {
+            const double wuuu = wuu * u, wuuv = wuu * v, wuvv = wuv * v, wvvv = wvv * v;
+            mom[3][0] += wuuu, mom[2][1] += wuuv, mom[1][2] += wuvv, mom[0][3] += wvvv;
+            mom[4][0] += wuuu * u, mom[3][1] += wuuu * v, mom[2][2] += wuuv * v;
+            mom[1][3] += wuvv * v, mom[0][4] += wvvv * v;
+            r[3] += wuu * z, r[4] += wuv * z, r[5] += wvv * z;
         }
     }
-    for (int a = 0; a < T; ++a)
-        for (int b = a + 1; b < T; ++b) m[a][b] = m[b][a];
+    for (int a = 0; a < T; ++a) {
+        eq.r[a] = r[a];
+        for (int b = 0; b < T; ++b) eq.m[a][b] = mom[kPowU[a] + kPowU[b]][kPowV[a] + kPowV[b]];
+    }
+}
+
+/// Solves the normal equations of `T` features (on a copy: `eq` is kept) into `coef`.
+template <int T>
+bool solve_terms(const NormalEquations &eq, double *coef) {
+    double m[kMaxTerms][kMaxTerms], r[kMaxTerms];
+    for (int a = 0; a < T; ++a) {
+        r[a] = eq.r[a];
+        for (int b = 0; b < T; ++b) m[a][b] = eq.m[a][b];
+    }
     if (!solve_spd(m, r, T)) return false;
     for (int a = 0; a < T; ++a) {
         if (!std::isfinite(r[a])) return false;
@@ -91,16 +128,27 @@ bool fit_terms(const FitRows *rows, const double *w, uint32_t k, double *coef) {
     return true;
 }
 
-bool fit_terms(const FitRows *rows, const double *w, uint32_t k, int t, double *coef) {
-    return t == kMaxTerms ? fit_terms<kMaxTerms>(rows, w, k, coef)
-                          : fit_terms<3>(rows, w, k, coef);
+/// Weighted least squares of z on the first `T` features; `eq` keeps the normal equations of
+/// these weights (whether or not they could be solved).
+template <int T>
+bool fit_terms(const FitRow *rows, const double *w, uint32_t k, NormalEquations &eq,
+               double *coef) {
+    accumulate<T>(rows, w, k, eq);
+    return solve_terms<T>(eq, coef);
 }
 
-/// z minus the fit, summed term by term in order (as a dot product from 0).
+bool fit_terms(const FitRow *rows, const double *w, uint32_t k, int t, NormalEquations &eq,
+               double *coef) {
+    return t == kMaxTerms ? fit_terms<kMaxTerms>(rows, w, k, eq, coef)
+                          : fit_terms<3>(rows, w, k, eq, coef);
+}
+
+/// z minus the fit of `T` features.
 template <int T>
-double residual(const double *c, const FitRows &row) {
-    double s = 0;
-    for (int a = 0; a < T; ++a) s += c[a] * row.f[a];
+double residual(const double *c, const FitRow &row) {
+    double s = c[0] + c[1] * row.u + c[2] * row.v;
+    if constexpr (T == kMaxTerms)
+        s += c[3] * row.u * row.u + c[4] * row.u * row.v + c[5] * row.v * row.v;
     return row.z - s;
 }
 
@@ -111,19 +159,19 @@ double dist2(const double *a, const double *b) {
 
 /// Scratch space of one worker, grown to the largest neighbourhood it fits.
 struct FitScratch {
-    std::vector<FitRows> rows;
-    std::vector<FitRows> pull_rows;
+    std::vector<FitRow> rows;
     std::vector<double> ws, w, res;
     void reserve(uint32_t k) {
         if (rows.size() >= k) return;
-        rows.resize(k), pull_rows.resize(k), ws.resize(k), w.resize(k), res.resize(k);
+        rows.resize(k), ws.resize(k), w.resize(k), res.resize(k);
     }
 };
 
-/// The robust reweighting passes of a fit of `T` terms (coefficients `c`, updated in place).
+/// The robust reweighting passes of a fit of `T` terms (coefficients `c`, updated in place);
+/// `eq` ends with the normal equations of the final weights `w`.
 template <int T>
-void reweight(const FitRows *rows, const double *ws, double *w, double *res, uint32_t k,
-              const FitOptions &opt, double *c) {
+void reweight(const FitRow *rows, const double *ws, double *w, double *res, uint32_t k,
+              const FitOptions &opt, NormalEquations &eq, double *c) {
     for (int pass = 0; pass < opt.robust_passes; ++pass) {
         double sr = 0, sw = 0;
         for (uint32_t j = 0; j < k; ++j) {
@@ -139,7 +187,7 @@ void reweight(const FitRows *rows, const double *ws, double *w, double *res, uin
         }
         double prev[kMaxTerms];
         std::copy(c, c + T, prev);
-        if (!fit_terms<T>(rows, w, k, c)) std::copy(prev, prev + T, c);
+        if (!fit_terms<T>(rows, w, k, eq, c)) std::copy(prev, prev + T, c);
     }
 }
 
@@ -153,21 +201,20 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     const double *p = points + 3 * i;
     double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
     if (!(h2 > 0)) return false;
-    double h = std::sqrt(h2);
+    double h = std::sqrt(h2), inv_h = 1.0 / h;
     double nn[3] = {normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]}, t1[3], t2[3];
     tangent_basis(nn, t1, t2);
     s.reserve(k);
-    FitRows *rows = s.rows.data();
+    FitRow *rows = s.rows.data();
     double *ws = s.ws.data(), *w = s.w.data();
-    rows[0] = FitRows{{1.0, 0.0, 0.0, 0.0, 0.0, 0.0}, 0.0};  // entry 0 is the point itself
+    rows[0] = FitRow{0.0, 0.0, 0.0};  // entry 0 is the point itself
     ws[0] = 1.0;
     for (uint32_t m = 0; m + 1 < k; ++m) {
         const double *q = points + 3 * size_t(row[m]);
         double d[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]};
-        double u = (d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) / h;
-        double v = (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) / h;
-        rows[m + 1] = FitRows{{1.0, u, v, u * u, u * v, v * v},
-                              (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) / h};
+        rows[m + 1] = FitRow{(d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2]) * inv_h,
+                             (d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]) * inv_h,
+                             (d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2]) * inv_h};
         double t = 1.0 - (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / h2;
         // a neighbour facing the other way lies on the far side of a thin part (or is
         // misoriented): fitting it would pull the point into the part
@@ -178,26 +225,29 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     std::copy(ws, ws + k, w);
     int terms = quadric && k >= 2 * kMaxTerms ? kMaxTerms : 3;
     double c[kMaxTerms];
-    bool ok = fit_terms(rows, w, k, terms, c);
-    if (!ok && terms == kMaxTerms) ok = fit_terms(rows, w, k, terms = 3, c);
+    NormalEquations eq;
+    bool ok = fit_terms(rows, w, k, terms, eq, c);
+    if (!ok && terms == kMaxTerms) ok = fit_terms(rows, w, k, terms = 3, eq, c);
     if (ok) {
-        if (terms == kMaxTerms) reweight<kMaxTerms>(rows, ws, w, s.res.data(), k, opt, c);
-        else reweight<3>(rows, ws, w, s.res.data(), k, opt, c);
+        if (terms == kMaxTerms) reweight<kMaxTerms>(rows, ws, w, s.res.data(), k, opt, eq, c);
+        else reweight<3>(rows, ws, w, s.res.data(), k, opt, eq, c);
     }
     // the fit at the point's own tangential position: height a, slopes (b, c)
     if (!ok || !(std::fabs(c[0]) <= 1.0 / kFitReach)) return false;
     // A plane fitted to a curved neighbourhood lies below it (on the concave side) by its own
     // fit of the quadratic part: curvature x support^2 / 4 on a sphere. The quadric has the
     // surface's curvature, so that pull is the plane fit, with the same weights, of its
-    // quadratic terms alone: the height of that plane at the point.
+    // quadratic terms alone: the height of that plane at the point. Its normal equations are
+    // the quadric's first three rows: the plane's block of m, and on the right the quadratic
+    // columns times the quadric's second-order coefficients.
     if (out_pull && terms == kMaxTerms) {
-        FitRows *q = s.pull_rows.data();
-        for (uint32_t j = 0; j < k; ++j) {
-            q[j] = rows[j];
-            q[j].z = c[3] * rows[j].f[3] + c[4] * rows[j].f[4] + c[5] * rows[j].f[5];
+        NormalEquations pe;
+        for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) pe.m[a][b] = eq.m[a][b];
+            pe.r[a] = c[3] * eq.m[a][3] + c[4] * eq.m[a][4] + c[5] * eq.m[a][5];
         }
         double pc[3];
-        if (fit_terms<3>(q, w, k, pc)) *out_pull = pc[0] * h;
+        if (solve_terms<3>(pe, pc)) *out_pull = pc[0] * h;
     }
     double g[3];
     for (int a = 0; a < 3; ++a) g[a] = nn[a] - c[1] * t1[a] - c[2] * t2[a];
@@ -250,6 +300,55 @@ void give_back_pull(FitResult &res, const NeighbourTable &nb, const std::vector<
     check_cancel(progress);
 }
 
+/// Greedy thinning of the fitted points `res` (positions and normals as fitted so far): visiting
+/// the points seen most head-on first (then by index), a point is dropped when a kept point
+/// lies within `thin` x its spacing. `among` (null: every point): only these points are
+/// visited; the others are dropped. Sets res.keep and res.kept.
+void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoints,
+                 size_t n_viewpoints, double thin, const std::vector<uint32_t> *among,
+                 int threads, Progress *progress) {
+    size_t n = nb.n;
+    std::vector<uint32_t> order;
+    if (among) {
+        order = *among;
+    } else {
+        order.resize(n);
+        std::iota(order.begin(), order.end(), 0u);
+    }
+    std::vector<double> priority(n, 0.0);
+    if (viewpoints) {
+        parallel_for(order.size(), 4096, threads, [&](size_t b, size_t e, int) {
+            for (size_t a = b; a < e; ++a) {
+                size_t i = order[a];
+                const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
+                const double *q = res.points.data() + 3 * i;
+                const float *nn = res.normals.data() + 3 * i;
+                double d[3] = {vp[0] - q[0], vp[1] - q[1], vp[2] - q[2]};
+                double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                priority[i] = l > 0 ? (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2]) / l : 0.0;
+            }
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+    }
+    std::stable_sort(order.begin(), order.end(),
+                     [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
+    std::fill(res.keep.begin(), res.keep.end(), 0);
+    for (uint32_t i : order) {
+        double r2 = thin * thin * res.spacing[i] * res.spacing[i];
+        const uint32_t *row = nb.row(i);
+        const double *q = res.points.data() + 3 * size_t(i);
+        bool redundant = false;
+        for (uint32_t m = 0; m < nb.k && !redundant; ++m) {
+            uint32_t j = row[m];
+            if (!res.keep[j]) continue;
+            double d2 = dist2(res.points.data() + 3 * size_t(j), q);
+            redundant = d2 < r2 || d2 == 0.0;
+        }
+        res.keep[i] = !redundant;
+    }
+    res.kept = size_t(std::count(res.keep.begin(), res.keep.end(), uint8_t(1)));
+}
+
 }  // namespace
 
 FitResult fit_surface(const double *points, const float *normals, const uint32_t *support,
@@ -264,21 +363,41 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     res.spacing.assign(n, 0.0);
     res.kept = n;
     if (n == 0 || nb.k < 2) return res;
-    if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
+    constexpr size_t kGrain = 1024;
+    // each point's spacing within its own scan (its nearest neighbour from the same scan)
+    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            const uint32_t *row = nb.row(i);
+            uint32_t j = row[0];
+            for (uint32_t m = 0; m < nb.k; ++m)
+                if (!group || group[row[m]] == group[i]) {
+                    j = row[m];
+                    break;
+                }
+            res.spacing[i] = std::sqrt(dist2(points + 3 * size_t(j), points + 3 * i));
+        }
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
     std::vector<uint8_t> moved(n, 0);
     // each pass fits the previous pass's positions and normals (the first: the input's): the
     // noise left after one fit is ~1/sqrt(support) of the input's, so the next fit's normals
     // are that much better, and the surface is fitted over a wider effective support
     std::vector<double> src_p;
     std::vector<float> src_n;
-    constexpr size_t kGrain = 1024;
     int passes = std::max(opt.passes, 1);
     // the plane passes before a last quadric pass each pull the points toward the concave
     // side; the quadric estimates that pull and it is given back after the last pass
     const bool unpull = opt.quadric && passes > 1;
     std::vector<double> pull(unpull ? n : 0, 0.0);
     std::vector<uint8_t> last(unpull ? n : 0, kNotMoved);
-    if (progress) progress->total.fetch_add(n * size_t(passes - 1), std::memory_order_relaxed);
+    // With more than one pass a first thinning (at kEarlyThin x the radius) runs before the
+    // last pass, on the previous pass's positions and normals, and the last pass fits only the
+    // points it keeps (over all points' positions): where scans overlap most points are
+    // dropped, and their last fit would be thrown away. The thinning proper then runs among
+    // those points on their final positions and normals.
+    const bool thin = opt.thin > 0;
+    const bool thin_early = thin && passes > 1;
+    std::vector<uint32_t> active;  // the points the last pass fits (thin_early)
     for (int pass = 0; pass < passes; ++pass) {
         const double *sp = points;
         const float *sn = normals;
@@ -288,10 +407,22 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
             sp = src_p.data();
             sn = src_n.data();
         }
-        bool quadric = opt.quadric && pass == passes - 1;
-        parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        bool final_pass = pass == passes - 1;
+        bool quadric = opt.quadric && final_pass;
+        if (final_pass && thin_early) {
+            thin_points(res, nb, viewpoints, n_viewpoints, kEarlyThin * opt.thin, nullptr,
+                        opt.threads, progress);
+            active.reserve(res.kept);
+            for (size_t i = 0; i < n; ++i)
+                if (res.keep[i]) active.push_back(uint32_t(i));
+        }
+        const bool subset = final_pass && thin_early;
+        const size_t count = subset ? active.size() : n;
+        if (progress) progress->total.fetch_add(count, std::memory_order_relaxed);
+        parallel_for(count, kGrain, opt.threads, [&](size_t b, size_t e, int) {
             FitScratch scratch;
-            for (size_t i = b; i < e; ++i) {
+            for (size_t a = b; a < e; ++a) {
+                size_t i = subset ? active[a] : a;
                 uint32_t k = std::max<uint32_t>(support ? support[i] : opt.min_support,
                                                 opt.min_support);
                 k = std::min<uint32_t>(k, nb.k + 1);
@@ -309,53 +440,15 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     }
     if (unpull) give_back_pull(res, nb, pull, last, double(passes - 1), opt.threads, progress);
     res.unmoved = n - size_t(std::count(moved.begin(), moved.end(), uint8_t(1)));
-    // how far each point moved; its spacing within its own scan (its nearest neighbour from the
-    // same scan); how head-on its scanner saw it
-    std::vector<double> &spacing = res.spacing;
-    std::vector<double> priority(n, 0.0);
+    // how far each point moved
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        for (size_t i = b; i < e; ++i) {
+        for (size_t i = b; i < e; ++i)
             res.shift[i] = float(std::sqrt(dist2(&res.points[3 * i], points + 3 * i)));
-            const uint32_t *row = nb.row(i);
-            uint32_t j = row[0];
-            for (uint32_t m = 0; m < nb.k; ++m)
-                if (!group || group[row[m]] == group[i]) {
-                    j = row[m];
-                    break;
-                }
-            spacing[i] = std::sqrt(dist2(points + 3 * size_t(j), points + 3 * i));
-            if (viewpoints) {
-                const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
-                const double *q = res.points.data() + 3 * i;
-                const float *nn = res.normals.data() + 3 * i;
-                double d[3] = {vp[0] - q[0], vp[1] - q[1], vp[2] - q[2]};
-                double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-                priority[i] = l > 0 ? (nn[0] * d[0] + nn[1] * d[1] + nn[2] * d[2]) / l : 0.0;
-            }
-        }
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    if (!(opt.thin > 0)) return res;
-    // greedy thinning: the points seen most head-on first (then by index)
-    std::vector<uint32_t> order(n);
-    std::iota(order.begin(), order.end(), 0u);
-    std::stable_sort(order.begin(), order.end(),
-                     [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
-    std::fill(res.keep.begin(), res.keep.end(), 0);
-    for (uint32_t i : order) {
-        double r2 = opt.thin * opt.thin * spacing[i] * spacing[i];
-        const uint32_t *row = nb.row(i);
-        const double *q = res.points.data() + 3 * size_t(i);
-        bool redundant = false;
-        for (uint32_t m = 0; m < nb.k && !redundant; ++m) {
-            uint32_t j = row[m];
-            if (!res.keep[j]) continue;
-            double d2 = dist2(res.points.data() + 3 * size_t(j), q);
-            redundant = d2 < r2 || d2 == 0.0;
-        }
-        res.keep[i] = !redundant;
-    }
-    res.kept = size_t(std::count(res.keep.begin(), res.keep.end(), uint8_t(1)));
+    if (thin)
+        thin_points(res, nb, viewpoints, n_viewpoints, opt.thin, thin_early ? &active : nullptr,
+                    opt.threads, progress);
     return res;
 }
 

@@ -92,6 +92,25 @@ Fit fit_plane(const Rel *rel, uint32_t k) {
     return f;
 }
 
+/// What pass 2 of estimate_normals uses of a Fit (the smallest size's, fitted in pass 1).
+struct SmallFit {
+    double n[3] = {0, 0, 1};
+    double gain = 0, spread = 0;
+    bool ok = false;
+    SmallFit() = default;
+    explicit SmallFit(const Fit &f)
+        : n{f.axes.n[0], f.axes.n[1], f.axes.n[2]}, gain(f.gain), spread(f.spread),
+          ok(f.axes.ok) {}
+    Fit fit() const {
+        Fit f;
+        for (int a = 0; a < 3; ++a) f.axes.n[a] = n[a];
+        f.axes.ok = ok;
+        f.gain = gain;
+        f.spread = spread;
+        return f;
+    }
+};
+
 /// sin^2 of the angle between two normals that rounding alone can produce (exact planes have a
 /// standard error of 0).
 constexpr double kAngleRounding = 1e-12;
@@ -123,15 +142,19 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 1024;
     double gamma2 = opt.confidence * opt.confidence;
-    // pass 1: the residual variance of every point's smallest neighbourhood
+    // pass 1: the residual variance of every point's smallest neighbourhood; its fit is kept
+    // for pass 2, whose first size it is
     uint32_t k0 = sizes.front();
     std::vector<double> sigma2(n, 0.0);
+    std::vector<SmallFit> first(n);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
         std::vector<Rel> rel(k0);
         for (size_t i = b; i < e; ++i) {
             relative(points, i, nb.row(i), k0 - 1, rel.data());
-            sigma2[i] = fit_plane(rel.data(), k0).sigma2;
+            Fit f = fit_plane(rel.data(), k0);
+            sigma2[i] = f.sigma2;
+            first[i] = SmallFit(f);
         }
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
@@ -156,7 +179,7 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
             Fit accepted[16];
             int n_acc = 0;
             for (uint32_t k : sizes) {
-                Fit f = fit_plane(rel.data(), k);
+                Fit f = k == k0 ? first[i].fit() : fit_plane(rel.data(), k);
                 if (!f.axes.ok) {
                     if (n_acc == 0) continue;  // a line at small scale may become a plane
                     break;

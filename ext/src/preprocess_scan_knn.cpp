@@ -14,8 +14,8 @@ namespace pointviz {
 namespace {
 
 /// The members of each group with more than k points, in index order (the caller's order keeps
-/// them spatially coherent); the rows of the points of smaller groups are filled here from
-/// `all` (neighbours among all points).
+/// them spatially coherent), the largest group first; the rows of the points of smaller groups
+/// are filled here from `all` (neighbours among all points).
 std::vector<std::vector<uint32_t>> large_groups(const double *points, size_t n,
                                                 const int32_t *group, uint32_t k,
                                                 const KnnTree &all, NeighbourTable &out) {
@@ -37,6 +37,13 @@ std::vector<std::vector<uint32_t>> large_groups(const double *points, size_t n,
         for (uint32_t i : ids)
             all.query(points + 3 * size_t(i), k, i, out.index.data() + size_t(i) * k, d2.data());
     }
+    // largest first: the workers take scans in this order, and a large scan taken last would
+    // leave the other workers idle while it runs (each scan fills its own rows: the table does
+    // not depend on the order)
+    std::stable_sort(scans.begin(), scans.end(),
+                     [](const std::vector<uint32_t> &a, const std::vector<uint32_t> &b) {
+                         return a.size() > b.size();
+                     });
     return scans;
 }
 

@@ -1,7 +1,10 @@
 // pointviz — surfels from noisy, overlapping scans: each point moves onto a robust local fit of
 // the surface across every scan that saw it (a weighted quadric height field in the frame of its
-// normal, the one-step moving-least-squares projection), then points that add nothing where
+// normal, the one-step moving-least-squares projection), and points that add nothing where
 // scans overlap are dropped (greedy thinning against the kept points, best-seen points first).
+// With more than one fit pass a first, narrower thinning runs before the last pass, which then
+// fits only the points it keeps (over every point's previous fit): where scans overlap it has a
+// third of the work.
 #pragma once
 
 #include <cstddef>
@@ -41,7 +44,10 @@ struct FitOptions {
     /// Drop a point when a kept point lies within `thin` x its spacing in its own scan (0: keep
     /// all). 0.75 keeps a single scan intact (its samples are >= 1 spacing apart) and keeps
     /// about one layer where scans overlap (a second layer's samples lie within 0.71 spacing of
-    /// the first's on a square grid).
+    /// the first's on a square grid). With passes > 1 a thinning at 0.8 x this radius on the
+    /// positions of the pass before the last picks the points the last pass fits (the dragon's
+    /// 15 scans: about 40 % of them); the pull given back is averaged over those among each
+    /// point's neighbours, and the thinning proper runs among them on their final positions.
     double thin = 0.75;
     int threads = 0;
 };
@@ -51,7 +57,8 @@ struct FitResult {
     std::vector<double> points;   ///< (n, 3) projected positions
     std::vector<float> normals;   ///< (n, 3) normals of the fit (sign of the input normals)
     std::vector<uint8_t> keep;    ///< (n,) 1: the surfel adds to the surface
-    std::vector<float> shift;     ///< (n,) distance moved
+    std::vector<float> shift;     ///< (n,) distance moved (a point the last pass skipped: by
+                                  ///< the passes before it)
     std::vector<double> spacing;  ///< (n,) distance to the nearest point of the same scan
     size_t kept = 0;              ///< points kept
     size_t unmoved = 0;           ///< fits that failed or asked for too large a move: not moved
