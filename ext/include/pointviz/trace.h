@@ -224,8 +224,12 @@ struct StackEntry {
     uint16_t depth;
     uint16_t cull;     ///< kCull: the subtree still needs cone tests; kVisited (wide traversal):
                        ///< the node's cone was tested when it was pushed
-    uint32_t ref = 0;  ///< with kVisited: the node's WideNode::ref (leaf range or wide node)
+    uint32_t ref;      ///< with kVisited: the node's WideNode::ref (leaf range or wide node)
 };
+// No default member initialisers: a traversal's stack (kStackSize entries) is left
+// uninitialised instead of being written on every ray.
+static_assert(std::is_trivially_default_constructible<StackEntry>::value,
+              "the traversal stack is not initialised per ray");
 /// kCounted (wide traversal, with kVisited): counted as well (A and B leaves; the grandchildren
 /// it pushes are counted when popped, as the binary traversal counts them).
 constexpr uint16_t kCull = 1, kVisited = 2, kCounted = 4;
@@ -264,11 +268,11 @@ inline bool binary_step(const SurfelTree &tree, const Node &nd, const Ray &ray, 
     float tb = enter_bound<kSlabs>(tree, c0 + 1, cd, ray, inv_d, tfar, box_depth);
     if (ta == kInf && tb == kInf) return false;
     if (ta <= tb) {
-        if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf};
-        e = {c0, ta, cd, cf};
+        if (tb != kInf) stack[sp++] = {c0 + 1, tb, cd, cf, 0u};
+        e = {c0, ta, cd, cf, 0u};
     } else {
-        if (ta != kInf) stack[sp++] = {c0, ta, cd, cf};
-        e = {c0 + 1, tb, cd, cf};
+        if (ta != kInf) stack[sp++] = {c0, ta, cd, cf, 0u};
+        e = {c0 + 1, tb, cd, cf, 0u};
     }
     return true;
 }
@@ -389,7 +393,7 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     int sp = 0;
     if (rs.t_root == kInf) return;
     // The current node; the near child of an interior node is taken next without a push.
-    StackEntry e{0u, rs.t_root, 0, uint16_t(cull)};
+    StackEntry e{0u, rs.t_root, 0, uint16_t(cull), 0u};
 
     for (;;) {
         bool descend = false;

@@ -33,11 +33,55 @@ namespace detail {
 /// What one wide node's lanes tell a ray: bit k of `mask` set when lane k's bound is entered
 /// within [ray.tmin, tfar], at t[k] (kInf elsewhere); of `away` when every normal of lane k's
 /// subtree faces away from the ray (cone cosine above the cone's sine), of `toward` when every
-/// one faces it.
+/// one faces it (both tested only for a ray still culling there: 0 otherwise).
 struct WideHits {
     uint32_t mask, away, toward;
     alignas(32) float t[kWideLanes];  ///< lanes 6 and 7 (AVX2: masked off) land here too
 };
+
+// Loading a wide node's fields into lanes: eight at a time (AVX2), four (SSE2), or one (no
+// SIMD). A load reads kWideStep values from its pointer: past a field's sixth lane it reads the
+// next field (lanes 6 and 7, masked off by kWideMask).
+#if defined(POINTVIZ_AVX2)
+using WideV = F8;
+constexpr uint32_t kWideStep = 8;
+inline F8 lanes_f32(const float *p) { return F8(_mm256_loadu_ps(p)); }
+inline F8 lanes_i16(const int16_t *p) {
+    return F8(_mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i *>(p)))));
+}
+inline F8 lanes_u16(const uint16_t *p) {
+    return F8(_mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i *>(p)))));
+}
+inline F8 lanes_u8(const uint8_t *p) {
+    return F8(_mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i *>(p)))));
+}
+#elif defined(POINTVIZ_SSE2)
+using WideV = F4;
+constexpr uint32_t kWideStep = 4;
+inline F4 lanes_f32(const float *p) { return F4(_mm_loadu_ps(p)); }
+inline F4 lanes_i16(const int16_t *p) {  // sign-extended: the high half of each pair
+    const __m128i x = _mm_loadl_epi64(reinterpret_cast<const __m128i *>(p));
+    return F4(_mm_cvtepi32_ps(_mm_srai_epi32(_mm_unpacklo_epi16(x, x), 16)));
+}
+inline F4 lanes_u16(const uint16_t *p) {
+    const __m128i x = _mm_loadl_epi64(reinterpret_cast<const __m128i *>(p));
+    return F4(_mm_cvtepi32_ps(_mm_unpacklo_epi16(x, _mm_setzero_si128())));
+}
+inline F4 lanes_u8(const uint8_t *p) {
+    int32_t bytes;
+    std::memcpy(&bytes, p, 4);
+    const __m128i zero = _mm_setzero_si128();
+    const __m128i x = _mm_unpacklo_epi8(_mm_cvtsi32_si128(bytes), zero);
+    return F4(_mm_cvtepi32_ps(_mm_unpacklo_epi16(x, zero)));
+}
+#else
+using WideV = float;
+constexpr uint32_t kWideStep = 1;
+inline float lanes_f32(const float *p) { return *p; }
+inline float lanes_i16(const int16_t *p) { return float(*p); }
+inline float lanes_u16(const uint16_t *p) { return float(*p); }
+inline float lanes_u8(const uint8_t *p) { return float(*p); }
+#endif
 
 /// std::min and std::max lane by lane, NaN included: (b < a) ? b : a and (a < b) ? b : a.
 template <class V>
@@ -102,110 +146,81 @@ inline void store_lanes(float v, float *p) { *p = v; }
 template <class V>
 inline void store_lanes(V v, float *p) { v.store(p); }
 
-/// Adds lanes [shift, shift + width of V) to `out`: entered, cone facing away, cone facing the
-/// ray (cone_admits' tests), entry parameter.
+/// Adds lanes [shift, shift + width of V) to `out`: entered and their entry parameter.
 template <class V, class M>
-inline void report_lanes(M ok, V t, V cosv, V s, uint32_t shift, WideHits &out) {
+inline void report_hits(M ok, V t, uint32_t shift, WideHits &out) {
     out.mask |= (movemask(ok) << shift) & kWideMask;
-    out.away |= (movemask(cosv > s) << shift) & kWideMask;
-    out.toward |= (movemask(cosv < V(0.f) - s) << shift) & kWideMask;
     store_lanes(t, out.t + shift);
 }
 
+/// Adds lanes [shift, shift + width of V) to `out`: cone facing away, cone facing the ray
+/// (cone_admits' tests).
+template <class V>
+inline void report_cones(V cosv, V s, uint32_t shift, WideHits &out) {
+    out.away |= (movemask(cosv > s) << shift) & kWideMask;
+    out.toward |= (movemask(cosv < V(0.f) - s) << shift) & kWideMask;
+}
+
+/// The cone's sine per lane, decoded as Node::cone does.
+template <class V>
+inline V cone_lanes(V qcone) {
+    return select(qcone >= V(float(kConeNeverQ)), V(2.f), qcone * V(1.f / kConeScale));
+}
+
 /// The lanes of one wide node test, decoded: the quantised fields with the binary node's own
-/// expressions (Node::axis, Node::cone, Node::slab_half_width), in lanes V.
+/// expressions (Node::axis, Node::cone, Node::slab_half_width), in lanes V. The cones only
+/// under culling (`cull`): without it the traversal reads no cone bit.
 template <bool kSlabs, class V>
-inline void wide_lanes(V cx, V cy, V cz, V r, V qx, V qy, V qz, V qcone, V qslab,
-                       const Ray &ray, float tfar, uint32_t shift, WideHits &out) {
+inline void wide_lanes(V cx, V cy, V cz, V r, V qx, V qy, V qz, const uint16_t *cone_q, V qslab,
+                       const Ray &ray, float tfar, bool cull, uint32_t shift, WideHits &out) {
     const V ka(1.f / kAxisScale);
     const V ax = qx * ka, ay = qy * ka, az = qz * ka;
     const V h = select(qslab >= V(float(kNoSlab)), V(kInf), qslab * V(1.f / 255.f) * r);
-    const V s = select(qcone >= V(float(kConeNeverQ)), V(2.f), qcone * V(1.f / kConeScale));
     V t, cosv;
     const auto ok = sphere_slab_lanes<kSlabs>(cx, cy, cz, r, ax, ay, az, h, ray, tfar, t, cosv);
-    report_lanes(ok, t, cosv, s, shift, out);
+    report_hits(ok, t, shift, out);
+    if (cull) report_cones(cosv, cone_lanes(lanes_u16(cone_q)), shift, out);
 }
 
-/// The lanes of one wide box node test, decoded.
+/// The lanes of one wide box node test, decoded; the cones only under culling.
 template <class V>
-inline void wide_box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, V qx, V qy, V qz, V qcone,
-                           const Ray &ray, Vec3 inv_d, float tfar, uint32_t shift, WideHits &out) {
-    const V ka(1.f / kAxisScale);
-    const V cosv = qx * ka * V(ray.d.x) + qy * ka * V(ray.d.y) + qz * ka * V(ray.d.z);
-    const V s = select(qcone >= V(float(kConeNeverQ)), V(2.f), qcone * V(1.f / kConeScale));
+inline void wide_box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const WideBoxNode &w, uint32_t g,
+                           const Ray &ray, Vec3 inv_d, float tfar, bool cull, WideHits &out) {
     V t;
     const auto ok = box_lanes(lx, ly, lz, hx, hy, hz, ray, inv_d, tfar, t);
-    report_lanes(ok, t, cosv, s, shift, out);
+    report_hits(ok, t, g, out);
+    if (!cull) return;
+    const V ka(1.f / kAxisScale);
+    const V cosv = lanes_i16(w.ax + g) * ka * V(ray.d.x) + lanes_i16(w.ay + g) * ka * V(ray.d.y) +
+                   lanes_i16(w.az + g) * ka * V(ray.d.z);
+    report_cones(cosv, cone_lanes(lanes_u16(w.cone_q + g)), g, out);
 }
 
-// Loading a wide node's fields into lanes: eight at a time (AVX2), four (SSE2), or one (no
-// SIMD). A load reads kWideStep values from its pointer: past a field's sixth lane it reads the
-// next field (lanes 6 and 7, masked off by kWideMask).
-#if defined(POINTVIZ_AVX2)
-using WideV = F8;
-constexpr uint32_t kWideStep = 8;
-inline F8 lanes_f32(const float *p) { return F8(_mm256_loadu_ps(p)); }
-inline F8 lanes_i16(const int16_t *p) {
-    return F8(_mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i *>(p)))));
-}
-inline F8 lanes_u16(const uint16_t *p) {
-    return F8(_mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i *>(p)))));
-}
-inline F8 lanes_u8(const uint8_t *p) {
-    return F8(_mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i *>(p)))));
-}
-#elif defined(POINTVIZ_SSE2)
-using WideV = F4;
-constexpr uint32_t kWideStep = 4;
-inline F4 lanes_f32(const float *p) { return F4(_mm_loadu_ps(p)); }
-inline F4 lanes_i16(const int16_t *p) {  // sign-extended: the high half of each pair
-    const __m128i x = _mm_loadl_epi64(reinterpret_cast<const __m128i *>(p));
-    return F4(_mm_cvtepi32_ps(_mm_srai_epi32(_mm_unpacklo_epi16(x, x), 16)));
-}
-inline F4 lanes_u16(const uint16_t *p) {
-    const __m128i x = _mm_loadl_epi64(reinterpret_cast<const __m128i *>(p));
-    return F4(_mm_cvtepi32_ps(_mm_unpacklo_epi16(x, _mm_setzero_si128())));
-}
-inline F4 lanes_u8(const uint8_t *p) {
-    int32_t bytes;
-    std::memcpy(&bytes, p, 4);
-    const __m128i zero = _mm_setzero_si128();
-    const __m128i x = _mm_unpacklo_epi8(_mm_cvtsi32_si128(bytes), zero);
-    return F4(_mm_cvtepi32_ps(_mm_unpacklo_epi16(x, zero)));
-}
-#else
-using WideV = float;
-constexpr uint32_t kWideStep = 1;
-inline float lanes_f32(const float *p) { return *p; }
-inline float lanes_i16(const int16_t *p) { return float(*p); }
-inline float lanes_u16(const uint16_t *p) { return float(*p); }
-inline float lanes_u8(const uint8_t *p) { return float(*p); }
-#endif
 
-/// Tests the ray against the six bounds and cones of `w` within [ray.tmin, tfar].
+/// Tests the ray against the six bounds of `w` within [ray.tmin, tfar], and their cones
+/// under culling (`cull`; away and toward stay 0 without).
 template <bool kSlabs>
-inline void enter_wide(const WideNode &w, const Ray &ray, float tfar, WideHits &out) {
+inline void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
     out.mask = out.away = out.toward = 0;
     for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
         if (g == 4 && !(out.mask & 2u)) break;  // B missed: its children do not count
         wide_lanes<kSlabs, WideV>(lanes_f32(w.cx + g), lanes_f32(w.cy + g), lanes_f32(w.cz + g),
                                   lanes_f32(w.r + g), lanes_i16(w.ax + g), lanes_i16(w.ay + g),
-                                  lanes_i16(w.az + g), lanes_u16(w.cone_q + g),
-                                  lanes_u8(w.slab_q + g), ray, tfar, g, out);
+                                  lanes_i16(w.az + g), w.cone_q + g, lanes_u8(w.slab_q + g),
+                                  ray, tfar, cull, g, out);
     }
 }
 
-/// Tests the ray against the six boxes and cones of `w` within [ray.tmin, tfar]. Lanes of a
-/// leaf's children hold no box: the caller ignores them.
+/// Tests the ray against the six boxes of `w` within [ray.tmin, tfar], and their cones under
+/// culling. Lanes of a leaf's children hold no box: the caller ignores them.
 inline void enter_wide_box(const WideBoxNode &w, const Ray &ray, Vec3 inv_d, float tfar,
-                           WideHits &out) {
+                           bool cull, WideHits &out) {
     out.mask = out.away = out.toward = 0;
     for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
         if (g == 4 && !(out.mask & 2u)) break;  // B missed: its children do not count
         wide_box_lanes<WideV>(lanes_f32(w.lx + g), lanes_f32(w.ly + g), lanes_f32(w.lz + g),
                               lanes_f32(w.hx + g), lanes_f32(w.hy + g), lanes_f32(w.hz + g),
-                              lanes_i16(w.ax + g), lanes_i16(w.ay + g), lanes_i16(w.az + g),
-                              lanes_u16(w.cone_q + g), ray, inv_d, tfar, g, out);
+                              w, g, ray, inv_d, tfar, cull, out);
     }
 }
 
@@ -243,7 +258,7 @@ void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptio
     // level): 48 for the deepest tree.
     StackEntry stack[kStackSize];
     int sp = 0;
-    StackEntry e{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0)};
+    StackEntry e{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u};
 
     for (;;) {
         bool descend = false;
@@ -284,11 +299,11 @@ void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptio
             const uint32_t *refs;
             if (wide.box_level(e.depth)) {
                 const WideBoxNode &w = wide.box_node(wi);
-                enter_wide_box(w, ray, rs.inv_d, policy.tfar(), wh);
+                enter_wide_box(w, ray, rs.inv_d, policy.tfar(), sub_cull, wh);
                 refs = w.ref;
             } else {
                 const WideNode &w = wide.node(wi);
-                enter_wide<kSlabs>(w, ray, policy.tfar(), wh);
+                enter_wide<kSlabs>(w, ray, policy.tfar(), sub_cull, wh);
                 refs = w.ref;
             }
             // Entries to push, as lanes (their t and ref are the lane's) with node and flags.
