@@ -206,6 +206,25 @@ def shared_denoiser(quality: str = DENOISE_QUALITY, threads: int | None = None) 
         return den
 
 
+def prepare_in_background(quality: str = DENOISE_QUALITY,
+                          threads: int | None = None) -> threading.Thread:
+    """Create the shared denoiser for (quality, threads) (:func:`shared_denoiser`) on a daemon
+    thread while the caller does other work: the command line starts it before it reads its
+    input, so that importing ``pyoidn`` and creating the device (which runs without Python's
+    lock) overlap the reading instead of delaying the frame. Errors are left to the first real
+    call, which raises them where they belong (a missing ``pyoidn`` included). Returns the
+    started thread."""
+    def work():
+        try:
+            shared_denoiser(quality, threads)
+        except Exception:  # noqa: BLE001 - the first real call reports it
+            pass
+
+    thread = threading.Thread(target=work, name="pointviz-denoiser-setup", daemon=True)
+    thread.start()
+    return thread
+
+
 def denoise_image(color: np.ndarray, albedo: np.ndarray | None = None,
                   normal: np.ndarray | None = None, quality: str = DENOISE_QUALITY,
                   exposure: float | None = None, threads: int | None = None) -> np.ndarray:

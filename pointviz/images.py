@@ -52,6 +52,14 @@ def check_image_path(path, overwrite: bool = False) -> Path:
     return check_output_path(p, overwrite)
 
 
+#: PNG row filter "Up" and deflate level of :func:`encode_png`. On rendered frames (smooth
+#: backgrounds, shaded surfaces) the filter makes the data compress better and faster: on the
+#: dragon's 640x480 frame, 270 kB at level 1 in about a quarter of the time of unfiltered level 6
+#: (287 kB). The pixels are the same whatever the encoding.
+PNG_FILTER_UP = 2
+PNG_LEVEL = 1
+
+
 def encode_png(pixels: np.ndarray) -> bytes:
     """PNG bytes of an (h, w, c) uint8 or uint16 array (c in 1, 3, 4)."""
     arr = np.asarray(pixels)
@@ -67,13 +75,19 @@ def encode_png(pixels: np.ndarray) -> bytes:
         row = w * c
     else:
         raise InputError(f"encode_png: expected uint8 or uint16 pixels, got {arr.dtype}")
-    lines = b"".join(b"\x00" + raw[i * row:(i + 1) * row] for i in range(h))
+    # every row filtered "Up" (its bytes minus the row above's, modulo 256; the first row's
+    # "above" is zeros), then deflated at level PNG_LEVEL
+    rows = np.frombuffer(raw, np.uint8).reshape(h, row)
+    lines = np.empty((h, row + 1), np.uint8)
+    lines[:, 0] = PNG_FILTER_UP
+    lines[:1, 1:] = rows[:1]
+    np.subtract(rows[1:], rows[:-1], out=lines[1:, 1:])
 
     def chunk(tag: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
     ihdr = struct.pack(">IIBBBBB", w, h, depth, ctype, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(lines, 6))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(lines.tobytes(), PNG_LEVEL))
             + chunk(b"IEND", b""))
 
 

@@ -212,6 +212,22 @@ def test_sixteen_bit_png_round_trip(tmp_path):
     assert np.array_equal(arr, px)
 
 
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_png_pixels_round_trip_through_other_decoders(tmp_path, channels):
+    """Row filtering and the deflate level change the bytes, never the pixels: random pixels (the
+    row differences wrap around modulo 256) read back by Pillow (8 bits) and VTK (16 bits)."""
+    from pointviz.images import encode_png
+
+    rng = np.random.default_rng(channels)
+    px8 = rng.integers(0, 256, size=(7, 11, channels), dtype=np.uint8)
+    (tmp_path / "x8.png").write_bytes(encode_png(px8))
+    assert np.array_equal(np.array(Image.open(tmp_path / "x8.png")).reshape(px8.shape), px8)
+    if channels == 3:
+        px16 = rng.integers(0, 65536, size=(6, 9, 3), dtype=np.uint16)
+        (tmp_path / "x16.png").write_bytes(encode_png(px16))
+        assert np.array_equal(_read_png16(tmp_path / "x16.png"), px16)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"spp": 0}, "spp"),
     ({"reflections": -1}, "reflections"),

@@ -24,10 +24,19 @@ def run(args) -> int:
     from ..rendering import render
 
     check_image_path(args.output, args.overwrite)  # fail before the expensive part
-    # nothing needs the cloud once its tree is built: the build frees it as it copies it
-    scene, camera = make_scene_and_camera(args, hand_over=True)
-    bar = ProgressBar("render", enabled=True if args.progress else None)
-    frame = render(scene, camera, progress=bar, **render_kwargs(args))
+    setup = None
+    if getattr(args, "denoise", True):  # the denoiser's setup overlaps the reading
+        from ..denoise import DENOISE_QUALITY, prepare_in_background
+
+        setup = prepare_in_background(DENOISE_QUALITY, args.threads)
+    try:
+        # nothing needs the cloud once its tree is built: the build frees it as it copies it
+        scene, camera = make_scene_and_camera(args, hand_over=True)
+        bar = ProgressBar("render", enabled=True if args.progress else None)
+        frame = render(scene, camera, progress=bar, **render_kwargs(args))
+    finally:
+        if setup is not None:  # (done long before, unless the run failed early)
+            setup.join()
     frame.save(args.output, bits=args.bits, exposure=args.exposure, overwrite=args.overwrite)
     s = frame.stats
     print(f"{args.output}: {camera.width}x{camera.height}, {s['seconds']:.2f} s, "
