@@ -299,3 +299,58 @@ def test_the_flat_look_gets_no_key_light():
     studio = Scene(cloud, look="studio")
     lit = model.render_scene(studio, model.initial_settings(studio))
     assert lit.lights and lit.lights[0].intensity > 0
+
+
+# ------------------------------------------------------------------ GUI thread side (no window)
+
+
+def test_live_frames_are_converted_on_the_worker_and_coalesced():
+    """The worker thread makes the Open3D image (the O(pixels) step) and posts one handler at a
+    time: frames that arrive while it waits replace the waiting one, which shows the newest."""
+    o3d = pytest.importorskip("open3d")
+    from types import SimpleNamespace
+
+    from pointviz.viewer.o3d_live import LiveMixin
+
+    class Viewer(LiveMixin):
+        def __init__(self):
+            self.o3d = o3d
+            self._init_live()
+            self.posted, self.shown = [], []
+
+        def _post(self, fn, what="posted"):
+            self.posted.append(fn)
+
+        def _show_live(self, lf, image):
+            self.shown.append((lf, image))
+
+    v = Viewer()
+    frames = [SimpleNamespace(image=np.full((4, 6, 3), 10 * i, np.uint8)) for i in range(3)]
+    for f in frames:
+        v._post_live_frame(f)
+    assert len(v.posted) == 1 and v.live_stats["frames_coalesced"] == 2
+    v.posted[0]()  # the GUI thread runs the handler
+    [(lf, image)] = v.shown
+    assert lf is frames[-1] and isinstance(image, o3d.geometry.Image)
+    assert np.array_equal(np.asarray(image), frames[-1].image)
+    v._post_live_frame(frames[0])  # nothing waits any more: a new handler is posted
+    assert len(v.posted) == 2
+
+
+def test_gui_trace_explains_a_round_trip():
+    from pointviz.viewer.gui_trace import GuiTrace
+
+    tr = GuiTrace(t0=100.0)
+    tr.marks.extend([(1.0, "first tick"), (5.0, "orbit")])
+    tr.add("tick", 105.0, 0.01)
+    tr.add("show live frame", 105.02, 0.005)
+    tr.add("tick", 105.3, 0.01)
+    e = tr.explain(104.99, 0.33)  # a round trip from 4.99 s to 5.32 s
+    assert e["phase"] == "first tick" and tr.phase_at(5.0) == "orbit"
+    assert e["untraced_s"] == pytest.approx(0.275, abs=1e-9)  # 5.025 .. 5.3: inside Open3D
+    assert [s[1] for s in e["spans"]] == ["tick", "tick", "show live frame"]
+    tr.event("first live frame")
+    tr.event("first live frame")  # events are recorded once
+    d = tr.to_dict()
+    assert d["kinds"]["tick"]["count"] == 2 and d["phases"][1] == [5.0, "orbit"]
+    assert [n for _, n in d["events"]] == ["first live frame"]

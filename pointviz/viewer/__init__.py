@@ -22,7 +22,8 @@ BACKENDS = ("open3d", "pyvista")
 
 def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
          render: bool = False, live: bool = False, orbit=None, screenshot=None, frame=None, report=None, overwrite=False,
-         title: str | None = None, window_size=None, on_ready=None, **setting_overrides):
+         title: str | None = None, window_size=None, on_ready=None, gui_trace: bool = False,
+         **setting_overrides):
     """Open the viewer on a cloud or scene and block until its window closes.
 
     Parameters
@@ -52,6 +53,9 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
         Replace existing screenshot/frame/report files.
     on_ready : callable(viewer), optional
         Called with the viewer object before the GUI loop starts (for scripts).
+    gui_trace : bool
+        Open3D backend: add to the report what the GUI thread did when (its timed callbacks
+        and the window's phases; ``viewer.gui_trace`` holds it in any case).
 
     Returns
     -------
@@ -92,7 +96,7 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
                                       screenshot=screenshot, frame=frame,
                                       report=report, overwrite=overwrite,
                                       close=screenshot is not None or frame is not None
-                                      or orbit is not None)
+                                      or orbit is not None, gui_trace=gui_trace)
         viewer = o3d_app.run(scene, settings, camera, title, auto, t_start,
                              window_size or o3d_app.DEFAULT_WINDOW_SIZE, on_ready)
         error = viewer.automation_error

@@ -30,6 +30,7 @@ from . import model
 from .model import PREVIEW_BACKGROUND
 from .o3d_actions import ActionsMixin
 from .o3d_automation import Automation, AutomationMixin, grab_window, save_frame_npz
+from .gui_trace import GuiTrace
 from .o3d_live import LiveMixin
 from .worker import RenderWorker, display_image
 
@@ -92,6 +93,9 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.automation = automation
         self.t_start = time.monotonic() if t_start is None else t_start
         self.timings: dict = {}
+        # what the GUI thread did when (cheap; read by drivers that time GUI round trips)
+        self.gui_trace = GuiTrace(self.t_start)
+        self.gui_trace.hook_gc()
         self.frame = None  # last finished Frame
         self.mesh_frame = None
         self.frame_camera = None
@@ -444,6 +448,10 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             self.preview.visible = not show
 
     def _on_tick(self) -> bool:
+        with self.gui_trace.span("tick"):
+            return self._tick()
+
+    def _tick(self) -> bool:
         now = time.monotonic()
         if interrupt.cancelled() and not self._closing:  # Ctrl-C in the CLI's terminal
             self._closing = True
@@ -451,6 +459,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             return False
         if self._first_tick is None:
             self._first_tick = now
+            self.gui_trace.mark("first tick")
             self.timings["first_preview_s"] = now - self.t_start
             self._update_status()
         if self.job is not None:
@@ -468,15 +477,18 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         if self.playing is not None:
             redraw |= self._advance_path(now)
         if self.automation is not None:
-            self._automate(now)
-        self._live_tick()
+            with self.gui_trace.span("automation"):
+                self._automate(now)
+        with self.gui_trace.span("live tick"):
+            self._live_tick()
         return redraw
 
     def _drain_tick_queue(self, now) -> bool:
         """Run the queued GUI-thread work; True when the progress bar is due for a redraw (at
         most once per PROGRESS_REDRAW_INTERVAL_S)."""
         while self._tick_queue:
-            self._tick_queue.popleft()()
+            with self.gui_trace.span("tick queue"):
+                self._tick_queue.popleft()()
         if self._progress_dirty and now - self._progress_drawn >= PROGRESS_REDRAW_INTERVAL_S:
             self._progress_dirty = False
             self._progress_drawn = now
@@ -498,6 +510,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
     def _on_close(self) -> bool:
         """Window closing (GUI thread): cancel the render and wait for the worker to end."""
         t0 = time.monotonic()
+        self.gui_trace.mark("close")
         self.closed = True
         ended = self.worker.shutdown()
         ended = self._close_live() and ended
@@ -543,19 +556,23 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.render_label.text = "cancelling..."
 
     # -- worker thread -> GUI thread (the only crossing)
-    def _post(self, fn) -> None:
+    def _post(self, fn, what: str = "posted") -> None:
         if not self.closed:
-            self.app.post_to_main_thread(self.window, fn)
+            def run():
+                with self.gui_trace.span(what):
+                    fn()
+
+            self.app.post_to_main_thread(self.window, run)
 
     def _post_progress(self, job_id, done, total):
         if not self.closed:  # no redraw of its own: the tick redraws the bar when it is due
             self._tick_queue.append(lambda: self._show_progress(job_id, done, total))
 
     def _post_done(self, job_id, result):
-        self._post(lambda: self._show_result(job_id, result))
+        self._post(lambda: self._show_result(job_id, result), "show render result")
 
     def _post_error(self, job_id, exc):
-        self._post(lambda: self._show_error(job_id, exc))
+        self._post(lambda: self._show_error(job_id, exc), "show render error")
 
     # -- GUI thread
     def _current(self, job_id) -> bool:
@@ -640,6 +657,7 @@ def run(scene, settings, camera=None, title="pointviz", automation=None, t_start
                                 name="pointviz-close-watchdog", daemon=True)
     watchdog.start()
     app.run()
+    viewer.gui_trace.unhook_gc()
     viewer.loop_ended.set()
     viewer.worker.shutdown()
     return viewer

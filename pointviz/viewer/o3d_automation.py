@@ -53,6 +53,9 @@ class Automation:
     overwrite : bool
     close : bool
         Close the window when done.
+    gui_trace : bool
+        Add what the GUI thread did when (:class:`~pointviz.viewer.gui_trace.GuiTrace`) to the
+        report.
     """
 
     render: bool = False
@@ -63,6 +66,7 @@ class Automation:
     report: str | None = None
     overwrite: bool = False
     close: bool = True
+    gui_trace: bool = False
     state: str = "wait"
     t_state: float = 0.0
     info: dict = field(default_factory=dict)
@@ -111,15 +115,20 @@ class AutomationMixin:
             else:
                 self._set_auto_state("settle")
         elif a.state == "settle" and now - a.t_state >= AUTOMATION_SETTLE_S:
+            self.gui_trace.mark("screenshot")
             a.info["attempts"] = a.info.get("attempts", 0) + 1
-            shot = self.screenshot() if a.screenshot else None
-            if (shot is not None and self._shows_blank(shot)
+            with self.gui_trace.span("screenshot grab"):
+                shot = self.screenshot() if a.screenshot else None
+            with self.gui_trace.span("screenshot check"):
+                blank = shot is not None and self._shows_blank(shot)
+            if (blank
                     and a.info["attempts"] < SCREENSHOT_ATTEMPTS):
                 self.window.post_redraw()
                 self._set_auto_state("settle")  # not presented yet: grab again a bit later
                 return
             self._set_auto_state("done")
-            self._finish_automation(shot)
+            with self.gui_trace.span("finish automation"):
+                self._finish_automation(shot)
 
     def _shows_blank(self, shot) -> bool:
         """True while the grab shows a blank window, a blank frame panel although a frame is
@@ -195,7 +204,9 @@ class AutomationMixin:
                 "total_points": int(self.preview_info.total),
                 "status": self.status.text, "render_label": self.render_label.text,
                 **self._live_summary(),
-                **({} if a is None else {"automation": a.info})}
+                **({} if a is None else {"automation": a.info}),
+                **({"gui_trace": self.gui_trace.to_dict()} if a is not None and a.gui_trace
+                   else {})}
 
     def _live_summary(self) -> dict:
         live = self.live_report()

@@ -4,8 +4,12 @@ With live mode on, the preview's SceneWidget hides the splats and shows the late
 picture as its background image, which the widget stretches to the viewport (the upscaling of the
 reduced frames while moving). The mouse still drives the widget's camera; every tick hands the
 current camera to the :class:`~pointviz.viewer.live.LiveRenderer`, which never blocks: the GUI
-thread takes a lock for a few assignments and never waits for the tracer. Frames come back
-through ``post_to_main_thread`` (:meth:`LiveMixin._post`), as the Render worker's reports do.
+thread takes a lock for a few assignments and never waits for the tracer.
+
+Frames come back through ``post_to_main_thread`` coalesced (:meth:`LiveMixin._post_live_frame`):
+the worker thread converts the picture into an Open3D image (the only O(pixels) step) and posts
+at most one handler at a time; a frame that arrives while one waits replaces it, so the window
+never redraws twice for frames it could not show.
 
 ``pointviz view --live --orbit SECONDS`` scripts it (:class:`LiveScript`): the splat preview
 circles the data for a while (its own frame rate), then the live view does for SECONDS, holds
@@ -15,6 +19,7 @@ still for HOLD_S, and the window saves a screenshot and closes.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -58,9 +63,12 @@ class LiveMixin:
         self.live = None          # the LiveRenderer while live mode is on
         self.live_frame = None    # the LiveFrame shown
         self.live_generation = 0  # the request the GUI last made
-        self.live_stats = {"frames_shown": 0, "moving_frames_shown": 0, "errors": []}
+        self.live_stats = {"frames_shown": 0, "moving_frames_shown": 0, "frames_coalesced": 0,
+                           "errors": []}
         self.live_script = None
         self._live_key = None     # what the last camera handed to the live renderer came from
+        self._live_pending = None  # (LiveFrame, o3d Image) posted and not shown yet
+        self._live_pending_lock = threading.Lock()
 
     def _build_live_widgets(self, parent) -> None:
         cb = self.gui.Checkbox("Live ray tracing (L)")
@@ -76,6 +84,7 @@ class LiveMixin:
             return
         self._live_key = None  # a new renderer gets the camera at the next tick
         sc = self.preview.scene
+        self.gui_trace.mark("live on" if on else "live off")
         if on:
             self.live = LiveRenderer(self._post_live_frame, self._live_prepare,
                                      self._post_live_error, threads=self.settings.threads,
@@ -123,20 +132,43 @@ class LiveMixin:
 
     # -- worker thread -> GUI thread
     def _post_live_frame(self, lf) -> None:
-        self._post(lambda: self._show_live(lf))
+        """(worker thread) Hand a frame to the GUI thread: its picture is converted here, and a
+        handler is posted only if none is waiting (a waiting one shows this frame instead)."""
+        image = self.o3d.geometry.Image(np.ascontiguousarray(lf.image))
+        with self._live_pending_lock:
+            waiting = self._live_pending is not None
+            self._live_pending = (lf, image)
+            if waiting:
+                self.live_stats["frames_coalesced"] += 1
+        if not waiting:
+            self._post(self._show_pending_live, "show live frame")
+
+    def _show_pending_live(self) -> None:
+        with self._live_pending_lock:
+            pending, self._live_pending = self._live_pending, None
+        if pending is not None:
+            self._show_live(*pending)
 
     def _post_live_error(self, exc) -> None:
-        self._post(lambda: self._show_live_error(exc))
+        self._post(lambda: self._show_live_error(exc), "show live error")
 
     # -- GUI thread
-    def _show_live(self, lf) -> None:
+    def _show_live(self, lf, image) -> None:
         if self.live is None or self.closed:
             return
+        tr = self.gui_trace
+        if self.live_frame is None:
+            tr.event("first live frame")
+        if not lf.moving and lf.denoised:
+            tr.event("first denoised frame")
+        elif not lf.moving:
+            tr.event("first still pass")
         self.live_frame = lf
-        image = self.o3d.geometry.Image(np.ascontiguousarray(lf.image))
-        self.preview.scene.set_background(list(self._background_color()), image)
-        self.preview.force_redraw()
-        self.window.post_redraw()  # the panel's live label too
+        with tr.span("live set_background"):
+            self.preview.scene.set_background(list(self._background_color()), image)
+        with tr.span("live force_redraw"):
+            self.preview.force_redraw()
+            self.window.post_redraw()  # the panel's live label too
         st = self.live_stats
         st["frames_shown"] += 1
         if lf.moving:
@@ -182,6 +214,7 @@ class LiveMixin:
         dt = now - s.t_state
         if s.state == "preview":
             if s.start_camera is None:
+                self.gui_trace.mark("preview orbit")
                 s.start_camera, s.t_state = self.current_camera(), now
                 return False
             span = min(PREVIEW_ORBIT_S, s.seconds)
@@ -195,6 +228,7 @@ class LiveMixin:
             s.state, s.t_state = "warmup", now
         elif s.state == "warmup":
             if self.live_frame is not None:  # trees built, first frame shown
+                self.gui_trace.mark("orbit")
                 s.state, s.t_state = "orbit", now
         elif s.state == "orbit":
             if dt < s.seconds:
@@ -204,8 +238,10 @@ class LiveMixin:
             self.apply_camera(self._orbit_at(s.seconds))
             self._live_tick()
             s.still_generation = self.live_generation
+            self.gui_trace.mark("hold")
             s.state, s.t_state = "hold", now
         elif s.state == "hold" and dt >= HOLD_S:
+            self.gui_trace.mark("hold done")
             s.state = "done"
             return True
         return s.state == "done"
