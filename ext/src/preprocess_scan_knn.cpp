@@ -74,17 +74,21 @@ void scan_tree_rows(const double *points, const std::vector<uint32_t> &ids,
 }
 
 /// One scan's points by grid cell, with a border of kGridMaxRing empty cells on every side (a
-/// ring search never leaves the array): at[(row - row0 + pad) * stride + col - col0 + pad] is
-/// the index of the point in that cell, or kNoIndex.
+/// ring search never leaves the array): at[o], o = (row - row0 + pad) * stride + col - col0 + pad,
+/// is the index of the point in that cell, or kNoIndex, and xyz[3 o ..] its coordinates. The
+/// ring searches read the scan's coordinates in grid order, row by row, instead of from all
+/// scans' points (in the KD-tree's order a scan's points are interleaved with the other
+/// scans'): a ring's rows are contiguous, and consecutive queries share their rings.
 struct CellMap {
     static constexpr int32_t pad = kGridMaxRing;
     int32_t row0 = 0, col0 = 0;
     size_t stride = 0;
     std::vector<uint32_t> at;
+    std::vector<double> xyz;
 
     /// False when the scan's cells are not a grid of one point per cell (a shared cell) or the
     /// grid would be far larger than the scan (kMaxCellsPerPoint cells per point).
-    bool build(const int32_t *cell, const std::vector<uint32_t> &ids) {
+    bool build(const double *points, const int32_t *cell, const std::vector<uint32_t> &ids) {
         constexpr size_t kMaxCellsPerPoint = 64;
         int32_t r1 = -1, c1 = -1;
         row0 = col0 = INT32_MAX;
@@ -99,12 +103,14 @@ struct CellMap {
         stride = size_t(c1 - col0) + 1 + 2 * pad;
         if (rows * stride > kMaxCellsPerPoint * ids.size()) return false;
         at.assign(rows * stride, kNoIndex);
+        xyz.assign(3 * rows * stride, 0.0);
         for (uint32_t i : ids) {
             int32_t r = cell[2 * size_t(i)], c = cell[2 * size_t(i) + 1];
             if (r < 0 || c < 0) continue;
-            uint32_t &slot = at[offset(r, c)];
-            if (slot != kNoIndex) return false;
-            slot = i;
+            size_t o = offset(r, c);
+            if (at[o] != kNoIndex) return false;
+            at[o] = i;
+            for (int a = 0; a < 3; ++a) xyz[3 * o + a] = points[3 * size_t(i) + a];
         }
         return true;
     }
@@ -113,42 +119,36 @@ struct CellMap {
     }
 };
 
-/// The k nearest of point `self` (in cell (row, col)) among the samples of the rings of cells
-/// around its own, into `heap`; false when they were still changing at the last ring (or
-/// fewer than k).
-bool grid_search(const double *points, const CellMap &map, int32_t row, int32_t col,
-                 uint32_t self, KnnHeap &heap) {
-    const double q[3] = {points[3 * size_t(self)], points[3 * size_t(self) + 1],
-                         points[3 * size_t(self) + 2]};
-    heap.size = 0;
-    const uint32_t *centre = map.at.data() + map.offset(row, col);
-    const ptrdiff_t stride = ptrdiff_t(map.stride);
+/// The k nearest of the point in cell `centre` (an offset into `map`) among the samples of the
+/// rings of cells around its own, into `best`; false when they were still changing at the last
+/// ring (or fewer than k).
+bool grid_search(const CellMap &map, size_t centre, KnnHeap &best) {
+    const double *q = map.xyz.data() + 3 * centre;
+    const double q0 = q[0], q1 = q[1], q2 = q[2];
+    best.size = 0;
+    const uint32_t *at = map.at.data();
+    const double *xyz = map.xyz.data();
+    const ptrdiff_t stride = ptrdiff_t(map.stride), c = ptrdiff_t(centre);
     bool any = false, entered = false;
-    auto visit = [&](const uint32_t *slot) {
-        uint32_t j = *slot;
+    auto visit = [&](ptrdiff_t o) {
+        uint32_t j = at[o];
         if (j == kNoIndex) return;
-        const double *s = points + 3 * size_t(j);
-        double d = (s[0] - q[0]) * (s[0] - q[0]) + (s[1] - q[1]) * (s[1] - q[1]) +
-                   (s[2] - q[2]) * (s[2] - q[2]);
+        const double *s = xyz + 3 * o;
+        double d = (s[0] - q0) * (s[0] - q0) + (s[1] - q1) * (s[1] - q1) +
+                   (s[2] - q2) * (s[2] - q2);
         any = true;
-        if (heap.size == heap.k &&
-            (d > heap.d2[heap.k - 1] || (d == heap.d2[heap.k - 1] && j > heap.idx[heap.k - 1])))
-            return;
-        heap.push(d, j);
-        entered = true;
+        entered |= best.push(d, j);
     };
     for (ptrdiff_t ring = 1; ring <= kGridMaxRing; ++ring) {
         any = entered = false;
-        const uint32_t *top = centre - ring * stride, *bottom = centre + ring * stride;
-        for (ptrdiff_t dc = -ring; dc <= ring; ++dc) {
-            visit(top + dc);
-            visit(bottom + dc);
-        }
+        const ptrdiff_t top = c - ring * stride, bottom = c + ring * stride;
+        for (ptrdiff_t dc = -ring; dc <= ring; ++dc) visit(top + dc);
         for (ptrdiff_t dr = -ring + 1; dr < ring; ++dr) {
-            visit(centre + dr * stride - ring);
-            visit(centre + dr * stride + ring);
+            visit(c + dr * stride - ring);
+            visit(c + dr * stride + ring);
         }
-        if (heap.size == heap.k && any && !entered) return true;
+        for (ptrdiff_t dc = -ring; dc <= ring; ++dc) visit(bottom + dc);
+        if (best.size == best.k && any && !entered) return true;
     }
     return false;
 }
@@ -191,18 +191,26 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
         for (size_t s = b; s < e; ++s) {
             const std::vector<uint32_t> &ids = scans[s];
             CellMap map;
-            if (!map.build(cell, ids)) {
+            if (!map.build(points, cell, ids)) {
                 scan_tree_rows(points, ids, nullptr, k, out);
                 from_tree.fetch_add(ids.size(), std::memory_order_relaxed);
                 if (progress) progress->advance(ids.size());
                 continue;
             }
+            // the points in grid order (each row is independent of the order)
             rest.clear();
             for (size_t p = 0; p < ids.size(); ++p) {
                 uint32_t i = ids[p];
-                int32_t r = cell[2 * size_t(i)], c = cell[2 * size_t(i) + 1];
-                if (r < 0 || c < 0 || !grid_search(points, map, r, c, i, heap)) {
+                if (cell[2 * size_t(i)] < 0 || cell[2 * size_t(i) + 1] < 0)
                     rest.push_back(uint32_t(p));
+            }
+            for (size_t o = 0; o < map.at.size(); ++o) {
+                uint32_t i = map.at[o];
+                if (i == kNoIndex) continue;
+                if (!grid_search(map, o, heap)) {
+                    // ids is in index order
+                    rest.push_back(uint32_t(std::lower_bound(ids.begin(), ids.end(), i) -
+                                            ids.begin()));
                     continue;
                 }
                 std::copy(hidx.begin(), hidx.end(), out.index.begin() + size_t(i) * k);

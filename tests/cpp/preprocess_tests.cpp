@@ -196,7 +196,7 @@ void test_grid_neighbours_match_brute_force_within_scan() {
     KnnTree all(p.data(), n, 2);
     std::vector<uint32_t> ref;
     GridNeighbourStats st;
-    for (int threads : {1, 3}) {
+    for (int threads : {1, 2, 3}) {
         NeighbourTable t = knn_within_grids(p.data(), n, group.data(), cell.data(), k, all,
                                             threads, nullptr, &st);
         CHECK(t.n == n && t.k == k, "grid table shape");

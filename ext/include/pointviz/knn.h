@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <vector>
@@ -20,7 +21,7 @@ constexpr uint32_t kNoIndex = 0xffffffffu;
 struct NeighbourTable;
 
 /// The k best (squared distance, index) pairs seen so far, kept sorted: k is small (<= 64), so
-/// insertion into a sorted array beats a binary heap.
+/// insertion into a sorted array beats a binary heap. Distances are squared (never negative).
 struct KnnHeap {
     uint32_t k = 0, size = 0;
     double *d2;
@@ -29,20 +30,33 @@ struct KnnHeap {
     double bound() const {
         return size < k ? std::numeric_limits<double>::infinity() : d2[k - 1];
     }
-    void push(double d, uint32_t i) {
+    /// Inserts (d, i) if it is among the k best; whether it was. The distances are compared as
+    /// their bits (non-negative doubles order as their bits do): integer compares, with no
+    /// unordered case to branch on.
+    bool push(double d, uint32_t i) {
+        const uint64_t b = bits(d);
         if (size == k) {
-            if (d > d2[k - 1] || (d == d2[k - 1] && i > idx[k - 1])) return;
+            uint64_t e = bits(d2[k - 1]);
+            if (b > e || (b == e && i > idx[k - 1])) return false;
         } else {
             ++size;
         }
         uint32_t j = size - 1;
-        while (j > 0 && (d < d2[j - 1] || (d == d2[j - 1] && i < idx[j - 1]))) {
+        while (j > 0) {
+            uint64_t e = bits(d2[j - 1]);
+            if (!(b < e || (b == e && i < idx[j - 1]))) break;
             d2[j] = d2[j - 1];
             idx[j] = idx[j - 1];
             --j;
         }
         d2[j] = d;
         idx[j] = i;
+        return true;
+    }
+    static uint64_t bits(double d) {
+        uint64_t u;
+        std::memcpy(&u, &d, sizeof u);
+        return u;
     }
 };
 
