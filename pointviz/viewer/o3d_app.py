@@ -148,6 +148,16 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         # redraw the 3D scene only when it changes, not for every progress-bar update: with a
         # software rasteriser a scene redraw costs tens of ms and competes with the tracer
         self.preview.enable_scene_caching(True)
+        # the preview is a proxy (shadows and reflections come from the ray tracer): no
+        # antialiasing, screen-space occlusion or shadow maps. With a software rasteriser
+        # (llvmpipe) they cost seconds per frame on a 1M-point cloud, and Open3D's GUI thread
+        # waits for every queued frame whenever its UI buffers grow (a panel text longer than
+        # any before): 6-8 s of frozen window with them, 0.14-0.23 s without
+        # (benchmarks/o3d_live_stall.py).
+        view = self.preview.scene.view
+        view.set_antialiasing(False)
+        view.set_ambient_occlusion(False)
+        view.set_shadowing(False)
         self.result = gui.ImageWidget(self.o3d.geometry.Image(np.full((8, 8, 3), 40, np.uint8)))
         self.status = gui.Label("loading...")
 
