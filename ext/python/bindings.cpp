@@ -349,6 +349,7 @@ nb::object run_render(PyRenderScene &ps, const CameraModel &cam, const RenderSet
     d["primary_traced"] = st.primary_traced.load();
     d["shadow_traced"] = st.shadow_traced.load();
     d["reflection_traced"] = st.reflection_traced.load();
+    d["primary_background"] = st.background.load();
     nb::dict phases;   // CPU time summed over the workers (zeros unless phase_times)
     phases["primary"] = 1e-9 * double(st.ns.primary.load());
     phases["reflection"] = 1e-9 * double(st.ns.reflection.load());
@@ -588,6 +589,7 @@ NB_MODULE(_core, m) {
         .def_rw("tile", &RenderSettings::tile)
         .def_rw("occlusion_rays", &RenderSettings::occlusion_rays)
         .def_rw("phase_times", &RenderSettings::phase_times)
+        .def_rw("background_shortcut", &RenderSettings::background_shortcut)
         .def_prop_rw("normal_offset", [](const RenderSettings &s) { return s.offsets.normal_offset; },
                      [](RenderSettings &s, float v) { s.offsets.normal_offset = v; })
         .def_prop_rw("offset_tmin", [](const RenderSettings &s) { return s.offsets.tmin; },

@@ -50,6 +50,33 @@ inline bool meets(const Reach &s, Vec3 o, Vec3 d, float tmin, float tmax) {
     return true;
 }
 
+/// A vector in double precision: the tile tests bound float quantities from outside.
+struct D3 {
+    double x, y, z;
+    D3(double a, double b, double c) : x(a), y(b), z(c) {}
+    explicit D3(Vec3 v) : x(v.x), y(v.y), z(v.z) {}
+    D3 operator+(D3 o) const { return {x + o.x, y + o.y, z + o.z}; }
+    D3 operator-(D3 o) const { return {x - o.x, y - o.y, z - o.z}; }
+    D3 operator*(double s) const { return {x * s, y * s, z * s}; }
+    double dot(D3 o) const { return x * o.x + y * o.y + z * o.z; }
+    double norm() const { return std::sqrt(dot(*this)); }
+    D3 cross(D3 o) const { return {y * o.z - z * o.y, z * o.x - x * o.z, x * o.y - y * o.x}; }
+};
+
+/// Distance from the origin to the segment [a, b] of the plane.
+inline double segment_distance(double ax, double ay, double bx, double by) {
+    const double ex = bx - ax, ey = by - ay, e2 = ex * ex + ey * ey;
+    const double s = e2 > 0.0 ? std::clamp(-(ax * ex + ay * ey) / e2, 0.0, 1.0) : 0.0;
+    return std::hypot(ax + ex * s, ay + ey * s);
+}
+
+/// What every camera sample of a tile sees, when it is proven to be one thing.
+enum class TileView {
+    Mixed,    ///< not proven: the samples take the general path
+    Miss,     ///< every sample misses every object's bounds and the ground
+    Faded,    ///< every sample misses every object's bounds and meets the ground beyond its fade
+};
+
 /// A clock in nanoseconds: CLOCK_THREAD_CPUTIME_ID (the calling thread's CPU time: a system
 /// call, about a microsecond) or CLOCK_MONOTONIC (read in user space, tens of nanoseconds).
 inline uint64_t clock_ns(clockid_t id) {
@@ -277,6 +304,8 @@ public:
         const float fade_end = 2.0001f * s.sky.ground_fade;
         fade_end2_ = s.sky.ground_fade > 0.f ? fade_end * fade_end : kInf;
         for (const Light &L : s.lights) light_cones_.emplace_back(L.direction, L.angle);
+        // a tile can be proven to show only background only when every object's bounds are known
+        background_possible_ = std::all_of(reach_.begin(), reach_.end(), [](const Reach &r) { return r.known; });
     }
 
     void render_tile(int x0, int y0, int x1, int y1, FrameBuffers &out) {
@@ -292,6 +321,15 @@ public:
         albedo_.assign(size_t(npix), Vec3{0, 0, 0});
         rays_.clear();
         const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
+        if (set_.background_shortcut) {
+            const TileView view = classify_tile(x0, y0, x1, y1);
+            if (view != TileView::Mixed) {
+                fill_background_tile(view, x0, y0, x1, y1, jitter, spp, out);
+                clock_.lap(kTile);
+                clock_.end_tile(stats_.ns);
+                return;
+            }
+        }
         if (!jitter) {   // pixel centres: the image-plane coordinates of the tile's columns, once
             plane_x_.resize(size_t(tw));
             for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
@@ -395,6 +433,160 @@ private:
             }
         }
         return traced;
+    }
+
+    /// What every camera sample of the tile [x0, x1) x [y0, y1) sees, proven from the tile's
+    /// corner rays (in double precision, with margins far above the float rounding of the
+    /// samples' own tests): their rays all lie in the pyramid spanned by the corners of the
+    /// tile's image-plane rectangle (jittered samples too). The pyramid misses an object's
+    /// bounds when the sphere lies beyond one of its faces or behind the eye; it misses the
+    /// ground when every corner ray points away from the plane, and meets it, in the convex
+    /// quadrilateral of the corner rays' hits, when every corner ray points toward it; that
+    /// quadrilateral is beyond the fade when its distance from the ground point exceeds the
+    /// fade's end. Anything not proven is Mixed.
+    TileView classify_tile(int x0, int y0, int x1, int y1) const {
+        if (!background_possible_) return TileView::Mixed;
+        // the rectangle, grown by a hundredth of a pixel
+        const double px = 0.01 * (double(cam_.plane_x(1.f)) - double(cam_.plane_x(0.f)));
+        const double py = 0.01 * (double(cam_.plane_y(0.f)) - double(cam_.plane_y(1.f)));
+        const double sx0 = double(cam_.plane_x(float(x0))) - px, sx1 = double(cam_.plane_x(float(x1))) + px;
+        const double sy0 = double(cam_.plane_y(float(y1))) - py, sy1 = double(cam_.plane_y(float(y0))) + py;
+        const D3 f(cam_.forward), r(cam_.right), u(cam_.up), eye(cam_.eye);
+        const D3 corner[4] = {f + r * sx0 + u * sy0, f + r * sx1 + u * sy0, f + r * sx1 + u * sy1,
+                              f + r * sx0 + u * sy1};
+        const D3 mid = f + r * (0.5 * (sx0 + sx1)) + u * (0.5 * (sy0 + sy1));
+        D3 face[4] = {D3(0, 0, 0), D3(0, 0, 0), D3(0, 0, 0), D3(0, 0, 0)};   // inward unit normals
+        for (int i = 0; i < 4; ++i) {
+            D3 n = corner[i].cross(corner[(i + 1) % 4]);
+            if (n.dot(mid) < 0.0) n = n * -1.0;
+            const double len = n.norm();
+            if (!(len > 0.0)) return TileView::Mixed;
+            face[i] = n * (1.0 / len);
+        }
+        const D3 fwd = f * (1.0 / f.norm());
+        for (const Reach &reach : reach_) {
+            const D3 q = D3(reach.c) - eye;
+            const double dist = q.norm();
+            const double rr = double(reach.r) * (1.0 + 1e-3) + 1e-5 * dist;
+            if (!(dist > rr)) return TileView::Mixed;
+            bool outside = q.dot(fwd) < -rr;
+            for (int i = 0; i < 4 && !outside; ++i) outside = q.dot(face[i]) < -rr;
+            if (!outside) return TileView::Mixed;
+        }
+        if (!scene_.ground) return TileView::Miss;
+        const D3 gn(scene_.ground_normal), gp(scene_.ground_point);
+        const double h = (gp - eye).dot(gn);   // the eye's signed distance below the plane
+        if (!(std::fabs(h) > 1e-6 * double(min_offset_ / kMinOffsetRel))) return TileView::Mixed;
+        // the cosine of a sample's direction with the plane's normal, times the sign of h, is
+        // at least the corners' smallest (its numerator is linear over the rectangle) over
+        // their largest length (convex): it must clear kParallelCos and the rounding by far
+        double lo = kInf, hi = -kInf, longest = 0.0;
+        for (const D3 &c : corner) {
+            const double den = c.dot(gn) * (h > 0.0 ? 1.0 : -1.0);
+            lo = std::min(lo, den);
+            hi = std::max(hi, den);
+            longest = std::max(longest, c.norm());
+        }
+        constexpr double kClear = 1e-4;
+        if (hi < -kClear * longest) return TileView::Miss;   // every sample points away from the plane
+        if (!(lo > kClear * longest) || !(scene_.sky.ground_fade > 0.f)) return TileView::Mixed;
+        // every sample meets the plane: the hits' convex quadrilateral, in the plane's basis
+        const D3 gt(ground_t_), gb(ground_b_);
+        double qx[4], qy[4], tmax = 0.0;
+        for (int i = 0; i < 4; ++i) {
+            const double t = h / corner[i].dot(gn);   // along the unnormalised corner ray
+            const D3 g = eye + corner[i] * t - gp;
+            tmax = std::max(tmax, t * corner[i].norm());
+            qx[i] = g.dot(gt);
+            qy[i] = g.dot(gb);
+        }
+        bool inside = true;   // the ground point inside the quadrilateral
+        double sign = 0.0, near = kInf;
+        for (int i = 0; i < 4; ++i) {
+            const int j = (i + 1) % 4;
+            const double c = qx[i] * qy[j] - qy[i] * qx[j];
+            if (sign == 0.0) sign = c;
+            if (c * sign < 0.0) inside = false;
+            near = std::min(near, segment_distance(qx[i], qy[i], qx[j], qy[j]));
+        }
+        if (inside) return TileView::Mixed;
+        const double fade_end = std::sqrt(double(fade_end2_));
+        const double margin = 1e-4 * (fade_end + (gp - eye).norm() + tmax);
+        return near > fade_end + margin ? TileView::Faded : TileView::Mixed;
+    }
+
+    /// A tile classify_tile proved to show only background, written to `out`: per sample the
+    /// direction and (on the ground) the distance, with the expressions of render_tile,
+    /// intersect() and trace_bounce(), and the same sums in the same order, so the pixels are
+    /// the bits the general path gives them; what no sample changes (the background's colour
+    /// unless it is the sky, the ground's normal) is summed once.
+    void fill_background_tile(TileView view, int x0, int y0, int x1, int y1, bool jitter, int spp,
+                              FrameBuffers &out) {
+        const Sky &sky_model = scene_.sky;
+        const bool faded = view == TileView::Faded, sky_bg = sky_model.background_is_sky;
+        const Vec3 eye = cam_.eye, gn = scene_.ground_normal;
+        const float h = dot(scene_.ground_point - eye, gn);
+        const Vec3 weight = Vec3{1, 1, 1} * (1.f / float(spp));
+        // (the faded ground adds weight * bg * f with a fade f of 1: the same bits as a miss)
+        Vec3 color{0, 0, 0}, albedo{0, 0, 0}, nsum{0, 0, 0};   // the sums no sample changes
+        if (!sky_bg)
+            for (int i = 0; i < spp; ++i) {
+                color += weight * sky_model.background;
+                albedo += weight * clamp01(sky_model.background);
+            }
+        const uint32_t hits = faded ? uint32_t(spp) : 0u;
+        if (faded) {   // every sample's direction has the sign of h against the normal
+            const Vec3 n = h > 0.f ? -gn : gn;
+            for (int i = 0; i < spp; ++i) nsum += n;
+        }
+        const Vec3 normal = hits ? unit_normal_.of(nsum) : Vec3{0, 0, 0};
+        const float alpha = spp == 1 ? float(hits) : float(hits) / float(spp);
+        const float object_alpha = spp == 1 ? 0.f : 0.f / float(spp);
+        const int tw = x1 - x0;
+        if (!jitter) {
+            plane_x_.resize(size_t(tw));
+            for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
+        }
+        for (int y = y0; y < y1; ++y) {
+            const float row_y = jitter ? 0.f : cam_.plane_y(float(y) + 0.5f);
+            for (int x = x0; x < x1; ++x) {
+                const uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
+                float sx = 0.f, sy = 0.f;
+                if (jitter) {
+                    sx = rand01(set_.seed, gp, 0, 0);
+                    sy = rand01(set_.seed, gp, 0, 1);
+                }
+                float depth = 0.f;
+                Vec3 c = color, a = albedo;
+                if (sky_bg) c = a = Vec3{0, 0, 0};
+                for (int i = 0; i < spp; ++i) {
+                    if (!faded && !sky_bg) break;   // nothing depends on the direction
+                    const uint32_t s = set_.sample_offset + uint32_t(i);
+                    float u = 0.5f, v = 0.5f;
+                    if (jitter) {
+                        u = float(frac(kR2a * s + sx));
+                        v = float(frac(kR2b * s + sy));
+                    }
+                    const Vec3 d = jitter ? cam_.direction(float(x) + u, float(y) + v)
+                                          : cam_.direction_at(plane_x_[size_t(x - x0)], row_y);
+                    if (faded) depth += h / dot(d, gn);
+                    if (sky_bg) {
+                        const Vec3 bg = sky(d);
+                        c += weight * bg;
+                        a += weight * clamp01(bg);
+                    }
+                }
+                for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = c[k];
+                out.alpha[gp] = alpha;
+                out.depth[gp] = hits == 1 ? depth : hits ? depth / float(hits) : kInf;
+                for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = normal[k];
+                for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, a[k]);
+                out.object_alpha[gp] = object_alpha;
+            }
+        }
+        const uint64_t samples = uint64_t(tw) * uint64_t(y1 - y0) * uint64_t(spp);
+        stats_.primary += samples;
+        stats_.background += samples;
     }
 
     /// Whether some object may lie within `dist` of `p`: false when `p` is farther than `dist`
@@ -687,6 +879,7 @@ private:
     std::vector<uint8_t> blocked_, occluded_;   ///< trace_shadows: per shadow ray, per batch ray
     std::vector<uint32_t> live_;   ///< trace_shadows: the shadow rays not yet blocked
     std::vector<float> plane_x_;   ///< render_tile: image-plane x of the tile's pixel centres
+    bool background_possible_ = false;   ///< every object's bounds known (classify_tile)
 };
 
 }  // namespace

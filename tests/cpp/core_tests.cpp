@@ -732,17 +732,32 @@ private:
 /// Rays the renderer does not trace because they cannot reach an object's bounds (camera,
 /// shadow and reflection rays that miss its sphere; sky-visibility rays that start farther than
 /// their length from every object, which are not even sampled) change no bit of the frame:
-/// the oracle is the same scene with the bounds hidden, where every ray is traced.
-void test_render_skips_match_boundless(RenderScene scene, CameraModel cam, RenderSettings set) {
+/// the oracle is the same scene with the bounds hidden, where every ray is traced. Neither do
+/// tiles written as background without a ray (RenderSettings::background_shortcut; with the
+/// bounds hidden no tile can be proven to show only background): `background` says whether
+/// the view has such tiles, and the frame is also compared with the shortcut turned off.
+void test_render_skips_match_boundless(RenderScene scene, CameraModel cam, RenderSettings set,
+                                       bool background = false) {
     for (int spp : {1, 3}) {
         set.spp = spp;
-        FrameBuffers direct, boundless;
-        RenderStats sd, sb;
-        Progress pd, pb;
+        FrameBuffers direct, boundless, traced;
+        RenderStats sd, sb, st;
+        Progress pd, pb, pt;
         CHECK(render(scene, cam, set, direct, sd, pd), "spp %d: render cancelled", spp);
         RenderScene hidden = scene;
         for (auto &o : hidden.objects) o.geometry = std::make_shared<BoundlessGeometry>(o.geometry);
         CHECK(render(hidden, cam, set, boundless, sb, pb), "spp %d: render cancelled", spp);
+        RenderSettings no_shortcut = set;
+        no_shortcut.background_shortcut = false;
+        CHECK(render(scene, cam, no_shortcut, traced, st, pt), "spp %d: render cancelled", spp);
+        CHECK(sb.background == 0 && st.background == 0 && (sd.background > 0) == background,
+              "spp %d: background samples %llu (bounds hidden %llu, shortcut off %llu)", spp,
+              (unsigned long long)sd.background.load(), (unsigned long long)sb.background.load(),
+              (unsigned long long)st.background.load());
+        CHECK(direct.color == traced.color && direct.depth == traced.depth && direct.normal == traced.normal &&
+                  direct.alpha == traced.alpha && direct.albedo == traced.albedo &&
+                  direct.object_alpha == traced.object_alpha,
+              "spp %d: the tiles written as background changed the frame", spp);
         CHECK(sd.shadow == sb.shadow && sd.shadow_traced < sb.shadow_traced && sd.primary_traced < sb.primary_traced,
               "spp %d: shadow rays %llu / %llu traced %llu / %llu, camera rays traced %llu / %llu: nothing skipped", spp,
               (unsigned long long)sd.shadow.load(), (unsigned long long)sb.shadow.load(),
@@ -855,7 +870,12 @@ void test_render() {
     cam.forward = normalize(Vec3{0, -0.45f, -1});
     cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
     cam.up = cross(cam.right, cam.forward);
-    test_render_skips_match_boundless(scene, cam, set);
+    test_render_skips_match_boundless(scene, cam, set, false);
+    cam.eye = {1.f, 4.f, 40};   // far: most tiles show only the faded ground and the sky
+    cam.forward = normalize(Vec3{0, -0.1f, -1});
+    cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
+    cam.up = cross(cam.right, cam.forward);
+    test_render_skips_match_boundless(scene, cam, set, true);
     // A 1x1 frame and a camera inside the sphere.
     cam.width = cam.height = 1;
     cam.eye = {0, 0, 0};

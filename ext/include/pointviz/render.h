@@ -119,6 +119,12 @@ struct RenderSettings {
     int tile = 16;               ///< tile edge in pixels
     int occlusion_rays = 2;      ///< sky-visibility rays per camera sample (1 on reflections)
     bool phase_times = false;    ///< fill RenderStats::ns (a clock read per phase and tile)
+    /// A tile whose camera samples provably see only background (its corner rays' pyramid
+    /// misses every object's bounds, and misses the ground or meets it beyond its fade) is
+    /// written directly, without queueing a ray: per sample only the direction and the ground's
+    /// distance, the same sums in the same order, so the frame is the same bits. false: every
+    /// tile takes the general path (the oracle of the tests).
+    bool background_shortcut = true;
     OffsetPolicy offsets;
 };
 
@@ -153,6 +159,9 @@ struct RenderStats {
     /// Rays of each kind that met an object's bounds, and so were traced against it (the rest
     /// cannot reach it and skip it).
     std::atomic<uint64_t> primary_traced{0}, shadow_traced{0}, reflection_traced{0};
+    /// Camera samples of the tiles written as background without a ray
+    /// (RenderSettings::background_shortcut).
+    std::atomic<uint64_t> background{0};
     std::atomic<uint64_t> tiles_done{0};
     uint64_t tiles_total = 0;
     PhaseTimes ns;
