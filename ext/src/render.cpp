@@ -313,14 +313,6 @@ public:
         const int tw = x1 - x0, th = y1 - y0, npix = tw * th;
         const int spp = std::max(1, set_.spp);
         const bool jitter = (set_.sequence_spp ? set_.sequence_spp : uint32_t(spp)) > 1;
-        color_.assign(size_t(npix), Vec3{0, 0, 0});
-        depth_sum_.assign(size_t(npix), 0.f);
-        nsum_.assign(size_t(npix), Vec3{0, 0, 0});
-        hits_.assign(size_t(npix), 0u);
-        object_hits_.assign(size_t(npix), 0u);
-        albedo_.assign(size_t(npix), Vec3{0, 0, 0});
-        rays_.clear();
-        const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
         if (set_.background_shortcut) {
             const TileView view = classify_tile(x0, y0, x1, y1);
             if (view != TileView::Mixed) {
@@ -330,6 +322,14 @@ public:
                 return;
             }
         }
+        color_.assign(size_t(npix), Vec3{0, 0, 0});
+        depth_sum_.assign(size_t(npix), 0.f);
+        nsum_.assign(size_t(npix), Vec3{0, 0, 0});
+        hits_.assign(size_t(npix), 0u);
+        object_hits_.assign(size_t(npix), 0u);
+        albedo_.assign(size_t(npix), Vec3{0, 0, 0});
+        rays_.clear();
+        const float spread = set_.lod_pixels > 0.f ? cam_.pixel_angle() : 0.f;
         if (!jitter) {   // pixel centres: the image-plane coordinates of the tile's columns, once
             plane_x_.resize(size_t(tw));
             for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
@@ -515,6 +515,25 @@ private:
         return near > fade_end + margin ? TileView::Faded : TileView::Mixed;
     }
 
+    /// The ground's distance along the camera rays through the pixel centres (px[i], py), i < n,
+    /// given h = dot(ground point - eye, normal): CameraModel::direction_at and intersect()'s
+    /// expressions written for the vectoriser (each lane's operations are the scalar ones, in
+    /// the same order, so the values are the same bits).
+    void ground_distances(const float *px, int n, float py, float h, float *t) const {
+        const Vec3 f = cam_.forward, r = cam_.right, u = cam_.up, gn = scene_.ground_normal;
+        for (int i = 0; i < n; ++i) {
+            const float sx = px[i];
+            // forward + right * sx + up * py, component by component
+            const float ax = (f.x + r.x * sx) + u.x * py;
+            const float ay = (f.y + r.y * sx) + u.y * py;
+            const float az = (f.z + r.z * sx) + u.z * py;
+            const float l = std::sqrt((ax * ax + ay * ay) + az * az);
+            const float inv = 1.f / l;
+            const float dx = l > 0.f ? ax * inv : ax, dy = l > 0.f ? ay * inv : ay, dz = l > 0.f ? az * inv : az;
+            t[i] = h / ((dx * gn.x + dy * gn.y) + dz * gn.z);
+        }
+    }
+
     /// A tile classify_tile proved to show only background, written to `out`: per sample the
     /// direction and (on the ground) the distance, with the expressions of render_tile,
     /// intersect() and trace_bounce(), and the same sums in the same order, so the pixels are
@@ -547,7 +566,22 @@ private:
             plane_x_.resize(size_t(tw));
             for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
         }
-        for (int y = y0; y < y1; ++y) {
+        if (!jitter && spp == 1 && !sky_bg) {   // one sample at the pixel centre: rows of distances
+            row_depth_.resize(size_t(tw));
+            for (int y = y0; y < y1; ++y) {
+                if (faded) ground_distances(plane_x_.data(), tw, cam_.plane_y(float(y) + 0.5f), h,
+                                            row_depth_.data());
+                for (int x = x0; x < x1; ++x) {
+                    const uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
+                    for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = color[k];
+                    out.alpha[gp] = alpha;
+                    out.depth[gp] = faded ? row_depth_[size_t(x - x0)] : kInf;
+                    for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = normal[k];
+                    for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo[k]);
+                    out.object_alpha[gp] = object_alpha;
+                }
+            }
+        } else for (int y = y0; y < y1; ++y) {
             const float row_y = jitter ? 0.f : cam_.plane_y(float(y) + 0.5f);
             for (int x = x0; x < x1; ++x) {
                 const uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
@@ -879,6 +913,7 @@ private:
     std::vector<uint8_t> blocked_, occluded_;   ///< trace_shadows: per shadow ray, per batch ray
     std::vector<uint32_t> live_;   ///< trace_shadows: the shadow rays not yet blocked
     std::vector<float> plane_x_;   ///< render_tile: image-plane x of the tile's pixel centres
+    std::vector<float> row_depth_;   ///< fill_background_tile: the ground's distance along a row
     bool background_possible_ = false;   ///< every object's bounds known (classify_tile)
 };
 
