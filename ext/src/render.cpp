@@ -567,19 +567,27 @@ private:
             for (int x = x0; x < x1; ++x) plane_x_[size_t(x - x0)] = cam_.plane_x(float(x) + 0.5f);
         }
         if (!jitter && spp == 1 && !sky_bg) {   // one sample at the pixel centre: rows of distances
-            row_depth_.resize(size_t(tw));
-            for (int y = y0; y < y1; ++y) {
-                if (faded) ground_distances(plane_x_.data(), tw, cam_.plane_y(float(y) + 0.5f), h,
-                                            row_depth_.data());
-                for (int x = x0; x < x1; ++x) {
-                    const uint64_t gp = uint64_t(y) * uint64_t(cam_.width) + uint64_t(x);
-                    for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = color[k];
-                    out.alpha[gp] = alpha;
-                    out.depth[gp] = faded ? row_depth_[size_t(x - x0)] : kInf;
-                    for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = normal[k];
-                    for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, albedo[k]);
-                    out.object_alpha[gp] = object_alpha;
+            // every row is the same but for the distances: its three-channel runs made once
+            row_rgb_.resize(3 * size_t(tw) * 3);
+            float *row_color = row_rgb_.data(), *row_normal = row_color + 3 * tw, *row_albedo = row_normal + 3 * tw;
+            for (int i = 0; i < tw; ++i)
+                for (int k = 0; k < 3; ++k) {
+                    row_color[3 * i + k] = color[k];
+                    row_normal[3 * i + k] = normal[k];
+                    row_albedo[3 * i + k] = std::min(1.f, albedo[k]);
                 }
+            const size_t rgb_bytes = 3 * size_t(tw) * sizeof(float);
+            for (int y = y0; y < y1; ++y) {
+                const size_t gp = size_t(y) * size_t(cam_.width) + size_t(x0);
+                std::memcpy(&out.color[3 * gp], row_color, rgb_bytes);
+                std::memcpy(&out.normal[3 * gp], row_normal, rgb_bytes);
+                std::memcpy(&out.albedo[3 * gp], row_albedo, rgb_bytes);
+                std::fill_n(&out.alpha[gp], tw, alpha);
+                std::fill_n(&out.object_alpha[gp], tw, object_alpha);
+                if (faded)
+                    ground_distances(plane_x_.data(), tw, cam_.plane_y(float(y) + 0.5f), h, &out.depth[gp]);
+                else
+                    std::fill_n(&out.depth[gp], tw, kInf);
             }
         } else for (int y = y0; y < y1; ++y) {
             const float row_y = jitter ? 0.f : cam_.plane_y(float(y) + 0.5f);
@@ -913,7 +921,7 @@ private:
     std::vector<uint8_t> blocked_, occluded_;   ///< trace_shadows: per shadow ray, per batch ray
     std::vector<uint32_t> live_;   ///< trace_shadows: the shadow rays not yet blocked
     std::vector<float> plane_x_;   ///< render_tile: image-plane x of the tile's pixel centres
-    std::vector<float> row_depth_;   ///< fill_background_tile: the ground's distance along a row
+    std::vector<float> row_rgb_;   ///< fill_background_tile: a row's colour, normal and albedo
     bool background_possible_ = false;   ///< every object's bounds known (classify_tile)
 };
 
