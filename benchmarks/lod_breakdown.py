@@ -7,13 +7,14 @@ studio look over the default ground, one thread), each split into:
   and ground), from the core's phase timers (``Frame.stats["phase_seconds"]``);
 * ``shadow``: shadow and sky-visibility rays against the objects and the ground;
 * ``shading``: the rest of a bounce (materials, lights, sampling the secondary rays);
-* ``tile``: a tile's camera rays and its output;
+* ``tile``: a tile's camera rays and its output (and the tiles proven to show only
+  background, written without a ray: ``RenderSettings.background_shortcut``);
 * ``rest``: the rest of ``render()`` (Python: the scene to the core, the exposure; the core's
   buffers and worker start);
 * ``tone map``: ``Frame.to_srgb8()`` (outside ``render()``; what a saved frame costs on top).
 
 Also the share of rays of each kind that met an object's bounds (and so were traced against its
-tree at all). Medians over ``--repeat`` interleaved repeats of process CPU time (the phases: the
+tree at all), and the camera samples of the background tiles. Medians over ``--repeat`` interleaved repeats of process CPU time (the phases: the
 tracer thread's CPU time; one thread by default).
 
 Examples
@@ -61,6 +62,7 @@ def split(scene, cam, v: dict, threads: int) -> dict:
     out["tone map"] = tone
     out["render"] = total
     rays = {k: (st[f"{k}_traced"], st[f"{k}_rays"]) for k in ("primary", "shadow", "reflection")}
+    rays["background"] = (st["primary_background"], st["primary_rays"])
     return {"parts": out, "rays": rays}
 
 

@@ -231,7 +231,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
         Add ``stats["phase_seconds"]``: the tracer's CPU time (summed over its threads) in
         closest-hit queries of camera rays (``primary``) and of reflection rays
         (``reflection``), in shadow and sky-visibility rays (``shadow``), in the rest of each
-        bounce (``shading``) and in the tiles' setup and output (``tile``): each phase timed
+        bounce (``shading``) and in the tiles' setup and output (``tile``; a tile proven to show
+        only background is written there whole, without a ray): each phase timed
         on the monotonic clock and scaled per tile to the thread's CPU time (one CPU-clock read,
         a system call, per tile).
 
