@@ -144,3 +144,20 @@ def test_random_views_equal_the_general_path(monkeypatch, ball):
         assert_same_bits(fast, slow, f"view {k}: eye {eye}, target {target}")
         taken += fast.stats["primary_background"]
     assert taken > 0
+
+
+def test_progressive_samples_equal_the_general_path(monkeypatch, ball):
+    # a later slice of a longer jittered sequence (sample_offset, sequence_spp), sky background
+    import dataclasses
+
+    from pointviz.looks import LOOKS
+
+    sky_look = dataclasses.replace(LOOKS["studio"], backdrop=False, background=None)
+    scene = Scene(ball, look=sky_look)
+    rs, _ = scene.to_core(Camera.fit(ball), 0.0)
+    assert rs.sky.background_is_sky  # the sky's colour per sample
+    cam = Camera.look_at((0.0, 2.0, 30.0), (0.0, 6.0, 0.0), width=64, height=48)
+    fast, slow = render_both(monkeypatch, scene, cam, spp=2, sample_offset=4, sequence_spp=8,
+                             threads=1, seed=9)
+    assert_same_bits(fast, slow, "progressive")
+    assert fast.stats["primary_background"] > 0

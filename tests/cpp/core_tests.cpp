@@ -876,6 +876,9 @@ void test_render() {
     cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
     cam.up = cross(cam.right, cam.forward);
     test_render_skips_match_boundless(scene, cam, set, true);
+    RenderScene sky_scene = scene;   // the sky behind the faded ground: its colour per sample
+    sky_scene.sky.background_is_sky = true;
+    test_render_skips_match_boundless(sky_scene, cam, set, true);
     // A 1x1 frame and a camera inside the sphere.
     cam.width = cam.height = 1;
     cam.eye = {0, 0, 0};
