@@ -502,7 +502,6 @@ def test_live_orbit_reports_and_its_still_frame_matches_a_direct_render(tmp_path
         f"viewport differs from the live frame: {diff:.1f} (the window measured "
         f"{report['automation'].get('live_view_difference')} after "
         f"{report['automation'].get('attempts')} grabs)")
-    print("live viewport difference", diff)
     assert np.abs(panel - resized[::-1]).mean() > diff + 5
 
 
