@@ -83,11 +83,12 @@ def timed(key, fn):
             local.nested = outer + spent
     return wrapper
 
-in_background = pointviz.commands.common._radii_in_background
+in_background = getattr(pointviz.commands.common, "_radii_in_background", None)
 def radii_in_background(*a, **kw):
     wait = in_background(*a, **kw)
     return None if wait is None else timed("radii_wait", wait)
-pointviz.commands.common._radii_in_background = radii_in_background
+if in_background is not None:  # (an older tree, for A/B runs, estimates them in load())
+    pointviz.commands.common._radii_in_background = radii_in_background
 
 for name in ("normals", "radii"):  # first access estimates them
     prop = getattr(PointCloud, name)
@@ -115,11 +116,12 @@ def dump(code):
     with open(out, "w") as fh:
         json.dump(t, fh)
 
-exit_now = pointviz.cli._exit_now
+exit_now = getattr(pointviz.cli, "_exit_now", None)
 def dump_and_exit(code):  # the CLI ends the process itself once its output is written
     dump(code)
     exit_now(code)
-pointviz.cli._exit_now = dump_and_exit
+if exit_now is not None:
+    pointviz.cli._exit_now = dump_and_exit
 dump(pointviz.cli.main())
 """
 #: The stages of TIMED_CLI, in pipeline order; together with "other" they make up the wall time.
