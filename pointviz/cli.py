@@ -32,6 +32,11 @@ if _spawned_by_the_cli():
 
 #: Subcommands, in the order ``pointviz --help`` lists them.
 COMMANDS = ("render", "view", "compare", "path", "info")
+#: Commands run with one OpenBLAS thread (:func:`_single_threaded_blas`): their heavy work is in
+#: the core, numpy's matrix products on their small arrays gain nothing from threads, and
+#: starting OpenBLAS's pool when numpy loads costs ~0.02-0.03 s of CPU, its idle workers
+#: spinning beside the core's threads more.
+SINGLE_THREADED_BLAS = ("render",)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -86,10 +91,19 @@ def main(argv=None) -> int:
     Run as a program (``argv`` None), a command that sets ``exit_fast`` in its parser's
     defaults (``render``: its output is complete, renamed into place, once it returns) ends the
     process as soon as it succeeds, without the interpreter's teardown (:func:`_exit_now`)."""
+    if argv is None and _named_command(sys.argv[1:]) in SINGLE_THREADED_BLAS:
+        _single_threaded_blas()
     status, fast = _run(argv)
     if fast and status == 0:
         _exit_now(status)
     return status
+
+
+def _single_threaded_blas() -> None:
+    """One OpenBLAS thread for this process unless the environment says otherwise; only before
+    numpy is imported (OpenBLAS reads it once, when numpy loads it)."""
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _exit_now(status: int) -> None:

@@ -5,6 +5,7 @@ ends as soon as its output is written, with nothing lost."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,24 @@ def test_radii_errors_name_the_file_when_estimated_beside_the_camera_fit(tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "stack.xyzn" in err[0] and "radii" in err[0]
     assert not out.exists()
+
+
+def test_render_run_as_a_program_uses_one_blas_thread_unless_told(raw_scans, tmp_path):
+    code = ("import os, sys\n"
+            "import pointviz.cli as cli\n"
+            "def end(status):\n"
+            "    print(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules)\n"
+            "    sys.stdout.flush()\n"
+            "    os._exit(status)\n"
+            "cli._exit_now = end\n"
+            "sys.argv = ['pointviz', *sys.argv[1:]]\n"
+            "cli.main()\n")
+    argv = ["render", raw_scans, "-o", tmp_path / "c.png", "--width", "24", "--spp", "1",
+            "--no-denoise"]
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, seen in ((None, "1"), ("2", "2")):
+        proc = subprocess.run([sys.executable, "-c", code, *map(str, argv), "--overwrite"],
+                              capture_output=True, text=True, timeout=300,
+                              env=env if given is None else {**env, "OPENBLAS_NUM_THREADS": given})
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.splitlines()[-1].split() == [seen, "True"]
