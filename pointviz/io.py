@@ -111,7 +111,7 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
             cloud.normals  # noqa: B018 - computes and caches
         except InputError as exc:
             raise FileFormatError(f"{path}: {exc}") from exc
-    if estimate is True:
+    if estimate and not isinstance(estimate, str):  # (True, or a numpy bool)
         estimate_radii_of(cloud, path)
     return cloud
 

@@ -109,6 +109,7 @@ def test_load_can_leave_the_radii_to_the_caller(tmp_path, rng):
     np.testing.assert_array_equal(part.radii, full.radii)
     with pytest.raises(InputError, match="estimate"):
         load(path, estimate="radii")
+    assert load(path, estimate=np.True_)._radii is not None
 
 
 def test_radii_errors_name_the_file_when_estimated_beside_the_camera_fit(tmp_path, capsys):
