@@ -191,13 +191,14 @@ void reweight(const FitRow *rows, const double *ws, double *w, double *res, uint
     }
 }
 
-/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
-/// writes the projected position and the fit's normal. With `out_pull` and a quadric fit, also
+/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours,
+/// reweighted against outliers when `robust`; writes the projected position and the fit's
+/// normal. With `out_pull` and a quadric fit, also
 /// the pull of one plane fit of this neighbourhood (below; left as it was otherwise). False:
 /// the fit failed or asked for a move beyond the neighbourhood.
 bool fit_point(const double *points, const float *normals, size_t i, const uint32_t *row,
-               uint32_t k, const FitOptions &opt, bool quadric, FitScratch &s, double *out_p,
-               float *out_n, double *out_pull) {
+               uint32_t k, const FitOptions &opt, bool quadric, bool robust, FitScratch &s,
+               double *out_p, float *out_n, double *out_pull) {
     const double *p = points + 3 * i;
     double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
     if (!(h2 > 0)) return false;
@@ -228,7 +229,7 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     NormalEquations eq;
     bool ok = fit_terms(rows, w, k, terms, eq, c);
     if (!ok && terms == kMaxTerms) ok = fit_terms(rows, w, k, terms = 3, eq, c);
-    if (ok) {
+    if (ok && robust) {
         if (terms == kMaxTerms) reweight<kMaxTerms>(rows, ws, w, s.res.data(), k, opt, eq, c);
         else reweight<3>(rows, ws, w, s.res.data(), k, opt, eq, c);
     }
@@ -428,8 +429,8 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
                 k = std::min<uint32_t>(k, nb.k + 1);
                 double *out_pull = unpull && quadric ? &pull[i] : nullptr;
                 if (out_pull) *out_pull = std::nan("");
-                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, scratch, &res.points[3 * i],
-                              &res.normals[3 * i], out_pull)) {
+                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, final_pass, scratch,
+                              &res.points[3 * i], &res.normals[3 * i], out_pull)) {
                     moved[i] |= 1;
                     if (out_pull) last[i] = std::isfinite(*out_pull) ? kPullEstimated : kMoved;
                 }
