@@ -331,8 +331,25 @@ void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoi
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
-    std::stable_sort(order.begin(), order.end(),
-                     [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
+    // by priority, then index (`order` is ascending): the keys sorted side by side, in halves
+    // on two workers and merged (the indirect comparisons of a sort of the indices alone missed
+    // the cache at every step)
+    struct Key {
+        double priority;
+        uint32_t index;
+        bool operator<(const Key &o) const {
+            return priority > o.priority || (priority == o.priority && index < o.index);
+        }
+    };
+    std::vector<Key> keys(order.size());
+    for (size_t a = 0; a < order.size(); ++a) keys[a] = Key{priority[order[a]], order[a]};
+    const size_t half = keys.size() / 2;
+    parallel_for(2, 1, threads, [&](size_t b, size_t e, int) {
+        for (size_t h = b; h < e; ++h)
+            std::sort(keys.begin() + (h ? half : 0), h ? keys.end() : keys.begin() + half);
+    });
+    std::inplace_merge(keys.begin(), keys.begin() + half, keys.end());
+    for (size_t a = 0; a < keys.size(); ++a) order[a] = keys[a].index;
     std::fill(res.keep.begin(), res.keep.end(), 0);
     for (uint32_t i : order) {
         double r2 = thin * thin * res.spacing[i] * res.spacing[i];
