@@ -79,16 +79,7 @@ lat, res = [], {{}}
 def drive(v):
     # one GUI round trip every {spacing} s from before the loop starts until the window closes
     try:
-        while not v.closed:
-            t = time.monotonic()
-            try:
-                v.call(lambda: None, timeout=60, redraw=False)
-                lat.append((t, time.monotonic() - t))
-            except TimeoutError:
-                if v.closed:
-                    break                             # posted as the window closed
-                lat.append((t, 60.0))
-            time.sleep({spacing})
+        v.time_round_trips({spacing}, lat)
     except BaseException:
         if not v.closed:
             res["error"] = traceback.format_exc()

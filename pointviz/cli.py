@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 
@@ -31,6 +32,11 @@ if _spawned_by_the_cli():
 
 #: Subcommands, in the order ``pointviz --help`` lists them.
 COMMANDS = ("render", "view", "compare", "path", "info")
+#: Commands run with one OpenBLAS thread (:func:`_single_threaded_blas`): their heavy work is in
+#: the core, numpy's matrix products on their small arrays gain nothing from threads, and
+#: starting OpenBLAS's pool when numpy loads costs ~0.02-0.03 s of CPU, its idle workers
+#: spinning beside the core's threads more.
+SINGLE_THREADED_BLAS = ("render",)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,13 +48,17 @@ class _Parser(argparse.ArgumentParser):
                      if " " in self.prog else f"pointviz: error: {' '.join(message.split())}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv=None) -> argparse.ArgumentParser:
+    """The parser of every subcommand; given the arguments (``argv``) that name one, the parser
+    of that one only, so that a run imports its own command's module and not the others' (the
+    ``path`` command's, for one, imports the camera paths and their batch renderer)."""
     parser = _Parser(
         prog="pointviz", description="Ray trace point clouds as surfels; view, compare, animate.")
     parser.add_argument("--version", action="version", version=f"pointviz {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for name in COMMANDS:
+    named = _named_command(argv)
+    for name in COMMANDS if named is None else (named,):
         try:
             module = importlib.import_module(f".commands.{name}", __package__)
         except ModuleNotFoundError as exc:
@@ -57,6 +67,14 @@ def build_parser() -> argparse.ArgumentParser:
             raise
         module.add_parser(sub)
     return parser
+
+
+def _named_command(argv) -> str | None:
+    """The subcommand the arguments name, or None: no arguments, an unknown command, or an
+    option before it (``--help``, ``--version``), which need the full parser."""
+    if argv is None or not argv or argv[0] not in COMMANDS:
+        return None
+    return argv[0]
 
 
 def _version() -> str:
@@ -68,23 +86,59 @@ def _version() -> str:
 def main(argv=None) -> int:
     """Run one command. Ctrl-C (SIGINT) only sets a cancel token (:mod:`pointviz.interrupt`);
     the work stops at its next check, outputs in progress are discarded, and the exit status is
-    130 with the single line ``pointviz: interrupted``."""
+    130 with the single line ``pointviz: interrupted``.
+
+    Run as a program (``argv`` None), a command that sets ``exit_fast`` in its parser's
+    defaults (``render``: its output is complete, renamed into place, once it returns) ends the
+    process as soon as it succeeds, without the interpreter's teardown (:func:`_exit_now`)."""
+    if argv is None and _named_command(sys.argv[1:]) in SINGLE_THREADED_BLAS:
+        _single_threaded_blas()
+    status, fast = _run(argv)
+    if fast and status == 0:
+        _exit_now(status)
+    return status
+
+
+def _single_threaded_blas() -> None:
+    """One OpenBLAS thread for this process unless the environment says otherwise; only before
+    numpy is imported (OpenBLAS reads it once, when numpy loads it)."""
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def _exit_now(status: int) -> None:
+    """End the process with ``status`` now: standard output and error flushed, no atexit
+    handlers, finalizers or module teardown (tens of ms with numpy, the core and the denoiser
+    loaded). Only for a command that leaves nothing to clean up."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe: nothing more can be written anyway
+            pass
+    os._exit(status)
+
+
+def _run(argv) -> tuple[int, bool]:
+    """(exit status, whether the process may end without its teardown)."""
     token = CancelToken()
     # Run as a program (argv None), the handler stays after the run: a Ctrl-C between the end of
     # the command and the end of the process must not become a traceback.
     with sigint_cancels(token, restore=argv is not None), cancel_scope(token):
+        fast = False
         try:
-            parser = build_parser()
-            args = parser.parse_args(argv)
+            args_in = sys.argv[1:] if argv is None else list(argv)
+            parser = build_parser(args_in)
+            args = parser.parse_args(args_in)
+            fast = argv is None and bool(getattr(args, "exit_fast", False))
             status = int(args.run(args) or 0)
             token.check()  # interrupted after the last check: the run did not end normally
-            return status
+            return status, fast
         except (CancelledError, KeyboardInterrupt):
             print("pointviz: interrupted", file=sys.stderr)
-            return 130
+            return 130, fast
         except (PointvizError, OSError, MemoryError) as exc:
             print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
-            return 2
+            return 2, fast
 
 
 def _one_line(exc: BaseException) -> str:

@@ -39,8 +39,8 @@ from .settings import check_int
 
 __all__ = [
     "CONF_EXTENSIONS", "LIDAR_EXTENSIONS", "MESH_EXTENSIONS", "POINT_EXTENSIONS",
-    "RANGE_SCAN_VIEW_DISTANCE", "SUPPORTED_EXTENSIONS", "VTK_EXTENSIONS", "load", "parse_conf",
-    "quaternion_matrix",
+    "RANGE_SCAN_VIEW_DISTANCE", "SUPPORTED_EXTENSIONS", "VTK_EXTENSIONS", "estimate_radii_of",
+    "load", "parse_conf", "quaternion_matrix",
 ]  # fmt: skip
 
 
@@ -56,10 +56,13 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
         For meshes: draw this many points uniformly on the surface (with face normals) instead
         of using the vertices. For point files: keep a uniformly random subset of this many
         points (all of them if the file has fewer).
-    estimate : bool
+    estimate : bool or "normals"
         If True (default), normals and radii the file does not provide are estimated before
         returning, so problems surface here with the file name and the cloud is ready to
-        render. If False they are left to be estimated lazily on first access.
+        render. If False they are left to be estimated lazily on first access. "normals":
+        as True for the fit and the normals, the radii left to the caller (who may estimate
+        them while doing something else; :func:`estimate_radii_of` names the file in its
+        errors as this function does).
     fit : bool, optional
         Move raw scans onto a robust fit of their surface and drop the points that add nothing
         where scans overlap (:meth:`PointCloud.fitted`; ``notes`` and ``fit_report`` say what
@@ -89,13 +92,15 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
         raise InputError(f"load: unknown keyword argument(s) {', '.join(sorted(unknown))}")
     if sample is not None:
         check_int(sample, "sample")
+    if estimate not in (True, False, "normals"):
+        raise InputError(f"load: estimate must be True, False or 'normals', got {estimate!r}")
     path = Path(os.fspath(path))
     cloud = read_file(path, sample=sample, rng=kw.get("rng"))
     if "up" in kw:
         cloud.up = None if kw["up"] is None else _unit_vector("up", kw["up"])
     cloud.name = kw.get("name", path.name)
     if fit is None:
-        fit = estimate and cloud.is_raw_scan
+        fit = bool(estimate) and cloud.is_raw_scan
     if fit:
         try:
             cloud = cloud.fitted()
@@ -104,7 +109,17 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     if estimate:
         try:
             cloud.normals  # noqa: B018 - computes and caches
-            cloud.radii  # noqa: B018
         except InputError as exc:
             raise FileFormatError(f"{path}: {exc}") from exc
+    if estimate and not isinstance(estimate, str):  # (True, or a numpy bool)
+        estimate_radii_of(cloud, path)
     return cloud
+
+
+def estimate_radii_of(cloud: PointCloud, path) -> None:
+    """Estimate (and cache) the radii of a cloud loaded from ``path`` if the file gave none,
+    an estimation error raised as :class:`FileFormatError` naming the file."""
+    try:
+        cloud.radii  # noqa: B018 - computes and caches
+    except InputError as exc:
+        raise FileFormatError(f"{path}: {exc}") from exc

@@ -7,6 +7,7 @@ request with the memory the machine has and raise :class:`~pointviz.errors.Input
 
 from __future__ import annotations
 
+import math
 import os
 
 from .errors import InputError
@@ -36,7 +37,14 @@ def check_coordinates(points, what: str) -> None:
     """
     import numpy as np
 
-    a = np.abs(np.asarray(points, dtype=np.float64))
+    a = np.asarray(points, dtype=np.float64)
+    if a.size == 0:
+        return
+    # the usual case in two passes without a copy: the extremes are finite and in range
+    lo, hi = float(a.min()), float(a.max())
+    if math.isfinite(lo) and math.isfinite(hi) and max(-lo, hi) <= MAX_ABS_COORDINATE:
+        return
+    a = np.abs(a)
     if not np.isfinite(a).all():  # only then the slower per-row selection
         a = a[np.isfinite(a).all(axis=1)] if a.ndim == 2 else a[np.isfinite(a)]
     if a.size and a.max() > MAX_ABS_COORDINATE:

@@ -387,3 +387,31 @@ def test_raw_scans_surfels_are_those_of_render_and_pay_their_own_normals(tmp_pat
         assert set(e["times"]["steps"]) == {"fit", "radii", "tree"}
     for e in meshes:
         assert "normals" in e["times"]["steps"]
+
+
+@needs_embreex
+@needs_flip
+def test_a_meshs_bvh_counts_once_in_its_first_image(tmp_path, monkeypatch):
+    """The mesh's Embree BVH is built inside its first render() call: its time is the "bvh"
+    step and not also part of the "render" time (the first image counts it once), as the
+    surfels' tree is the "tree" step only. A BVH build made 1 s slower shows where it goes."""
+    import time
+
+    import pointviz
+    from pointviz import meshes
+
+    build = meshes.LocalMesh.__init__
+
+    def slow_build(self, *a, **kw):
+        build(self, *a, **kw)
+        time.sleep(1.0)
+        self.build_seconds += 1.0
+
+    monkeypatch.setattr(meshes.LocalMesh, "__init__", slow_build)
+    doc = pointviz.compare("sphere", out_dir=tmp_path, methods=["poisson"], quick=True,
+                           log=lambda *_: None)
+    for e in doc["entries"]:
+        t = e["times"]
+        assert t["steps"]["bvh"] >= 1.0
+        assert t["render"] < 1.0  # (the render alone: a 160x120 frame of a small mesh)
+        assert t["first_image"] == pytest.approx(t["preprocess"] + t["render"])

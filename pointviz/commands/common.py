@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import MISSING, fields
 
 import numpy as np
@@ -69,15 +70,17 @@ def _number_or(names: tuple, kind: type):
     return parse
 
 
-def load_input(args):
-    """The cloud (or built-in demo scene) named on the command line."""
+def load_input(args, radii: bool = True):
+    """The cloud (or built-in demo scene) named on the command line; without ``radii`` the
+    radii it needs are left to the caller (:func:`pointviz.io.estimate_radii_of`)."""
     if args.input == "demo":
         from ..shapes import demo_scene
 
         return demo_scene()
     from ..io import load
 
-    cloud = load(args.input, sample=args.sample, fit=getattr(args, "fit", None))
+    cloud = load(args.input, sample=args.sample, fit=getattr(args, "fit", None),
+                 estimate=True if radii else "normals")
     report_fit(cloud)
     return cloud, None
 
@@ -119,7 +122,9 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     from ..scene import Scene
 
     stage("imported")
-    loaded, demo_camera = load_input(args)
+    # a cloud handed over whose camera is fitted has its radii estimated beside the camera fit
+    defer_radii = hand_over and prepare and not args.camera
+    loaded, demo_camera = load_input(args, radii=not defer_radii)
     stage("loaded")
     lights = parse_lights(args.light)
     kw = {}
@@ -137,13 +142,18 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     elif not consume:  # (else the scene is made from the tree, once the camera is fitted)
         scene = Scene([loaded], lights=lights, ground=args.ground or "auto",
                       look=args.look or "auto", **kw)
+    radii_done = _radii_in_background(loaded, args.input) if defer_radii and consume else None
     if args.camera:
         camera = Camera.from_json(args.camera)
     elif demo_camera is not None:
         camera = demo_camera
     else:
-        camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded,
-                            fov_deg=40.0 if args.fov is None else args.fov)
+        try:
+            camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded,
+                                fov_deg=40.0 if args.fov is None else args.fov)
+        finally:
+            if radii_done is not None:
+                radii_done()
     if args.fov is not None and args.fov != camera.fov_deg:
         camera = camera.replace(fov_deg=args.fov)  # validates: names fov_deg when out of range
     if args.width or args.height:
@@ -158,6 +168,34 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
         else:
             prepare_scene(scene)
     return scene, camera
+
+
+def _radii_in_background(loaded, path):
+    """Estimate the radii of a loaded cloud that has none on a worker thread (the core's
+    estimation runs without Python's lock), while the caller fits the camera, which needs only
+    the points. Returns the function that waits for them and raises what the estimation
+    raised; None when there is nothing to estimate."""
+    if not hasattr(loaded, "points") or loaded.has_radii:
+        return None
+    from ..io import estimate_radii_of
+
+    failed = []
+
+    def work():
+        try:
+            estimate_radii_of(loaded, path)
+        except BaseException as exc:  # noqa: BLE001 - raised again by the caller's wait
+            failed.append(exc)
+
+    thread = threading.Thread(target=work, name="pointviz-radii", daemon=True)
+    thread.start()
+
+    def wait():
+        thread.join()
+        if failed:
+            raise failed[0]
+
+    return wait
 
 
 def handed_over_scene(cloud, lights, ground, look, options: dict):

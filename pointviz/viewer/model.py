@@ -25,11 +25,21 @@ RENDER_FIELDS = ("shadows", "reflections", "spp", "lod_pixels", "max_error", "se
                  "denoise")
 #: How the ray-traced frame is shown: next to the preview, or over it (toggled).
 DISPLAYS = ("side", "overlay")
-#: Most points drawn by the preview. Above this the preview shows a random subset whose disks are
-#: enlarged to keep the surface closed. Mesa's software rasteriser (llvmpipe) redraws 1.5 M lit
-#: points in 0.5-1.3 s with the preview's antialiasing, occlusion and shadows off (o3d_app); the
-#: ray tracer always uses all.
-DEFAULT_PREVIEW_MAX_POINTS = 1_500_000
+#: Most points drawn by the preview. Above this the preview shows a spatially even subset (one
+#: point per stretch of a Z-order curve through the cloud) whose disks are enlarged to keep the
+#: surface closed; the ray tracer always uses all. A 640x480 viewport has 307k pixels, of which an
+#: object covers a fraction, and a splat is 2 px across or more: more points only add work for
+#: Mesa's software rasteriser (llvmpipe), whose queued frames the GUI thread waits for
+#: (benchmarks/o3d_preview_cost.py).
+DEFAULT_PREVIEW_MAX_POINTS = 200_000
+#: The preview's points are drawn unlit, their colours shaded beforehand like the ray tracer's
+#: studio lights (:func:`shade_colors`: an ambient floor, a sky term brighter on surfaces facing
+#: up, the key light and the fill light opposite it, all Lambert), so they still read as lit:
+#: Filament's lit point shader costs the software rasteriser about 1.5x the CPU per frame, and
+#: its queued frames keep the GUI thread waiting (benchmarks/o3d_preview_cost.py).
+PREVIEW_SHADE = {"ambient": 0.15, "sky": 0.35, "key": 0.8, "fill": 0.25}
+#: Bits per axis of the Z-order (Morton) code that orders a cloud for the preview's subset.
+MORTON_BITS = 21
 #: Preview background (sRGB), close to the ray tracer's sky at the horizon.
 PREVIEW_BACKGROUND = (0.82, 0.86, 0.92, 1.0)
 #: Seed of the preview subset, so the same cloud always previews the same points.
@@ -316,8 +326,37 @@ def preview_colors(cloud, material, index, mode: str, up) -> tuple[np.ndarray, s
     return rgb, note
 
 
+def morton_codes(points: np.ndarray) -> np.ndarray:
+    """Z-order codes of ``points`` (n, 3) quantised to MORTON_BITS per axis over their bounds;
+    (n,) uint64. Points close along the curve are close in space."""
+    p = np.asarray(points, dtype=np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    scale = (2**MORTON_BITS - 1) / np.maximum(hi - lo, 1e-300)
+    code = np.zeros(len(p), dtype=np.uint64)
+    for axis in range(3):
+        x = ((p[:, axis] - lo[axis]) * scale[axis]).astype(np.uint64)
+        for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
+                            (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
+                            (2, 0x1249249249249249)):
+            x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+        code |= x << np.uint64(axis)
+    return code
+
+
+def stratified_subset(points: np.ndarray, m: int, rng) -> np.ndarray:
+    """Sorted indices of ``m`` of ``points``, spread evenly over the cloud: the points ordered
+    along a Z-order curve are cut into ``m`` equal stretches and one point is drawn from each
+    (a random subset leaves clumps and holes that enlarged disks only partly hide)."""
+    n = len(points)
+    if m >= n:
+        return np.arange(n)
+    order = np.argsort(morton_codes(points), kind="stable")
+    pick = ((np.arange(m) + rng.random(m)) * (n / m)).astype(np.int64)
+    return np.sort(order[np.minimum(pick, n - 1)])
+
+
 def preview_data(scene, settings: ViewerSettings) -> PreviewData:
-    """Points, normals, colours and radii the preview draws (a seeded subset if too many)."""
+    """Points, normals, colours and radii the preview draws (an even subset if too many)."""
     pairs = scene_clouds(scene)
     if not pairs:
         raise InputError("scene: nothing to preview (no point clouds)")
@@ -328,7 +367,7 @@ def preview_data(scene, settings: ViewerSettings) -> PreviewData:
     for cloud, mat in pairs:
         n = len(cloud.points)
         if keep < 1.0:
-            index = np.sort(rng.choice(n, size=max(1, int(n * keep)), replace=False))
+            index = stratified_subset(np.asarray(cloud.points), max(1, int(n * keep)), rng)
         else:
             index = np.arange(n)
         c, note = preview_colors(cloud, mat, index, settings.color_mode, scene.up)
@@ -347,6 +386,25 @@ def preview_data(scene, settings: ViewerSettings) -> PreviewData:
         notes.insert(0, f"preview: {total:,} points")
     data.note = "; ".join(dict.fromkeys(notes))
     return data
+
+
+def shade_colors(colors: np.ndarray, normals: np.ndarray, settings: ViewerSettings,
+                 up) -> np.ndarray:
+    """``colors`` (n, 3) in [0, 1] shaded for the preview by the settings' key light, its fill
+    (as :func:`render_scene` places them) and a sky above ``up``, weights PREVIEW_SHADE; (n, 3)
+    float32 clipped to [0, 1]. View-independent, so computed once per light."""
+    w = PREVIEW_SHADE
+    key = light_direction(settings.light_azimuth_deg, settings.light_elevation_deg, up)
+    fill = light_direction(settings.light_azimuth_deg + FILL_AZIMUTH_OFFSET_DEG,
+                           FILL_ELEVATION_DEG, up)
+    u = np.asarray(up, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float32)
+    directions = np.stack([key, fill, u / np.linalg.norm(u)]).astype(np.float32)
+    cos = n @ directions.T                                     # (n, 3)
+    k = (w["ambient"] + w["key"] * np.maximum(cos[:, 0], 0.0)
+         + w["fill"] * np.maximum(cos[:, 1], 0.0) + w["sky"] * (0.5 + 0.5 * cos[:, 2]))
+    return np.clip(np.asarray(colors, dtype=np.float32) * k[:, None].astype(np.float32),
+                   0.0, 1.0)
 
 
 def point_size_px(radius: float, distance: float, height_px: int, fov_deg: float,

@@ -109,8 +109,10 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.path = None
         self.playing = None  # (t0 wall clock, path) while a path plays
         self._point_size = None
+        self._shaded_for = None  # the light (azimuth, elevation) the preview's colours are shaded for
         self._last_view = None
         self._first_tick = None
+        self._warming = False  # the first frame's background image (_warm_background) is up
         self._closing = False
         # work for the GUI thread that must not force a redraw of the window (progress reports,
         # ``call(..., redraw=False)``): drained by the tick event. Open3D redraws the whole
@@ -308,6 +310,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
     def _apply_lighting(self) -> None:
         s = self.settings
         d = model.light_direction(s.light_azimuth_deg, s.light_elevation_deg, self.scene.up)
+        if self._shaded_for != (s.light_azimuth_deg, s.light_elevation_deg):
+            self._upload_cloud()  # the points' colours are shaded by the light
         sc = self.preview.scene
         sc.set_lighting(sc.LightingProfile.NO_SHADOWS, (-d).astype(np.float32))
         sc.scene.set_sun_light((-d).astype(np.float32), [1.0, 1.0, 1.0],
@@ -344,21 +348,29 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         t0 = time.monotonic()
         data = model.preview_data(self.scene, self.settings)
         self.preview_info = data
+        self.median_radius = float(np.median(data.radii))
+        self._upload_cloud()
+        self.timings["preview_upload_s"] = time.monotonic() - t0
+        self._update_status()
+
+    def _upload_cloud(self) -> None:
+        """(Re)place the preview's points, their colours shaded by the settings' lights."""
+        data, s = self.preview_info, self.settings
         pcd = self.o3d.geometry.PointCloud()
         pcd.points = self.o3d.utility.Vector3dVector(data.points)
-        pcd.normals = self.o3d.utility.Vector3dVector(data.normals.astype(np.float64))
-        pcd.colors = self.o3d.utility.Vector3dVector(data.colors.astype(np.float64))
-        self.median_radius = float(np.median(data.radii))
+        colors = model.shade_colors(data.colors, data.normals, s, self.scene.up)
+        pcd.colors = self.o3d.utility.Vector3dVector(colors.astype(np.float64))
         sc = self.preview.scene
         if sc.has_geometry("cloud"):
             sc.remove_geometry("cloud")
         sc.add_geometry("cloud", pcd, self._point_material(self._point_size or 3.0))
-        self.timings["preview_upload_s"] = time.monotonic() - t0
-        self._update_status()
+        self._shaded_for = (s.light_azimuth_deg, s.light_elevation_deg)
+        if self.live is not None:  # live mode: the splats stay hidden
+            sc.show_geometry("cloud", False)
 
     def _point_material(self, size):
         mat = self.rendering.MaterialRecord()
-        mat.shader = "defaultLit"
+        mat.shader = "defaultUnlit"  # colours shaded beforehand (model.shade_colors)
         mat.point_size = float(size)
         return mat
 
@@ -375,9 +387,15 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         r = self.window.content_rect
         area_w = r.width - int(PANEL_WIDTH_EM * self.em)
         area_h = r.height - int(STATUS_HEIGHT_EM * self.em)
-        if self.settings.display == "side":
+        if self._split_view():
             area_w //= 2
         return max(area_w, 1), max(area_h, 1)
+
+    def _split_view(self) -> bool:
+        """Side by side: the preview and the finished frame each take half the area. While the
+        viewport is live (ray traced) and no Render has finished, it takes the whole area: an
+        empty half beside the ray-traced picture would show nothing."""
+        return self.settings.display == "side" and (self.live is None or self.frame is not None)
 
     def _fit_viewport(self) -> None:
         """Live automation with a set width and height: size the window so that the preview (the
@@ -385,8 +403,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         a, s = self.automation, self.settings
         if a is None or not a.live or not (s.width and s.height):
             return
-        n = 2 if s.display == "side" else 1
-        size = self.gui.Size(n * s.width + int(PANEL_WIDTH_EM * self.em),
+        # live: the viewport is the whole area until a Render finishes (_split_view)
+        size = self.gui.Size(s.width + int(PANEL_WIDTH_EM * self.em),
                              s.height + int(STATUS_HEIGHT_EM * self.em))
         self.window.size = size
 
@@ -444,7 +462,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         area_h = r.height - status_h
         self.panel.frame = gui.Rect(r.x + area_w, r.y, panel_w, area_h)
         self.status.frame = gui.Rect(r.x + int(0.5 * em), r.y + area_h, r.width - em, status_h)
-        if self.settings.display == "side":
+        if self._split_view():
             half = area_w // 2
             self.preview.frame = gui.Rect(r.x, r.y, half, area_h)
             self.result.frame = gui.Rect(r.x + half, r.y, area_w - half, area_h)
@@ -456,6 +474,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             show = self.show_frame and self.frame is not None
             self.result.visible = show
             self.preview.visible = not show
+        if self.live is None:  # the preview's height decides the point size
+            self._update_point_size()
 
     def _on_tick(self) -> bool:
         with self.gui_trace.span("tick"):
@@ -472,6 +492,10 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
             self.gui_trace.mark("first tick")
             self.timings["first_preview_s"] = now - self.t_start
             self._update_status()
+            self._warm_background(True)
+            return True
+        if self._warming:
+            self._warm_background(False)
         if self.job is not None:
             self.tick_times.append(now)
         redraw = self._drain_tick_queue(now)
@@ -492,6 +516,23 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         with self.gui_trace.span("live tick"):
             self._live_tick()
         return redraw
+
+    def _warm_background(self, on: bool) -> None:
+        """Show a background image of the background's own colour for the first frame: the
+        software rasteriser compiles the image's shaders then, not when the first live frame
+        comes (a first live redraw of 0.3-1 s otherwise)."""
+        self._warming = on
+        if self.live is not None:
+            return
+        sc = self.preview.scene
+        if on:
+            rgb = np.round(np.asarray(PREVIEW_BACKGROUND[:3]) * 255).astype(np.uint8)
+            sc.set_background(list(PREVIEW_BACKGROUND),
+                              self.o3d.geometry.Image(np.ascontiguousarray(
+                                  np.broadcast_to(rgb, (8, 8, 3)))))
+        else:
+            sc.set_background(list(PREVIEW_BACKGROUND), None)
+        self.preview.force_redraw()
 
     def _drain_tick_queue(self, now) -> bool:
         """Run the queued GUI-thread work; True when the progress bar is due for a redraw (at

@@ -250,6 +250,22 @@ class AutomationMixin:
         return box.get("value")
 
 
+    def time_round_trips(self, spacing: float, out: list, timeout: float = 60.0) -> None:
+        """(driver thread) Time one GUI round trip (``call(lambda: None, redraw=False)``) every
+        ``spacing`` seconds until the window closes, appending ``(start, seconds)`` (start in
+        ``time.monotonic()`` seconds) to ``out``. A call that times out counts as ``timeout``,
+        unless the window closed meanwhile (a call posted as it closed is never answered)."""
+        while not self.closed:
+            t = time.monotonic()
+            try:
+                self.call(lambda: None, timeout=timeout, redraw=False)
+                out.append((t, time.monotonic() - t))
+            except TimeoutError:
+                if self.closed:
+                    break
+                out.append((t, timeout))
+            time.sleep(spacing)
+
 
 def live_view_difference(panel: np.ndarray, image: np.ndarray) -> float:
     """Mean absolute difference (8-bit levels) between a live frame's ``image`` (ih, iw, 3) and

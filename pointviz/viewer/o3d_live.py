@@ -36,6 +36,11 @@ HOLD_S = 3.0
 PREVIEW_ORBIT_S = 2.0
 #: One scripted orbit: a full turn around the scene's up axis over the orbit's duration.
 ORBIT_TURNS = 1.0
+#: Least time between two live frames shown, seconds (at most 25 redraws a second). Each shown
+#: frame redraws the window; a small scene's still passes come back far faster than that, and
+#: redraws queued faster than the software rasteriser finishes them make the GUI thread wait
+#: for it (Filament's frame pacing). A frame that arrives sooner waits for the tick.
+LIVE_MIN_FRAME_INTERVAL_S = 0.04
 
 
 @dataclass
@@ -67,7 +72,9 @@ class LiveMixin:
                            "errors": []}
         self.live_script = None
         self._live_key = None     # what the last camera handed to the live renderer came from
-        self._live_pending = None  # (LiveFrame, o3d Image) posted and not shown yet
+        self._live_pending = None  # (LiveFrame, o3d Image) not shown yet
+        self._live_pending_posted = False  # a handler that shows it is posted (else: the tick)
+        self._live_shown_at = 0.0  # when the last live frame was shown (monotonic)
         self._live_pending_lock = threading.Lock()
 
     def _build_live_widgets(self, parent) -> None:
@@ -101,6 +108,7 @@ class LiveMixin:
             self.live_label.text = "live: off (splat preview)"
             self._update_point_size(force=True)  # not kept up while the splats were hidden
         self._show_splats(not on)
+        self.window.set_needs_layout()  # side by side or not (_split_view)
         self.preview.force_redraw()
         self.chk_live.checked = on  # last: a callback it may fire finds the state already set
 
@@ -122,6 +130,7 @@ class LiveMixin:
         when the preview's view, its size or the settings have changed since the last one)."""
         if self.live is None:
             return
+        self._show_due_live(time.monotonic())
         cam, frame = self.preview.scene.camera, self.preview.frame
         key = (np.asarray(cam.get_view_matrix()).tobytes(),
                np.asarray(cam.get_projection_matrix()).tobytes(), frame.width, frame.height,
@@ -133,19 +142,32 @@ class LiveMixin:
     # -- worker thread -> GUI thread
     def _post_live_frame(self, lf) -> None:
         """(worker thread) Hand a frame to the GUI thread: its picture is converted here, and a
-        handler is posted only if none is waiting (a waiting one shows this frame instead)."""
+        handler is posted only if none is waiting (a waiting one shows this frame instead) and
+        the last frame was shown LIVE_MIN_FRAME_INTERVAL_S ago or more (else the tick shows it
+        when that time has passed, :meth:`_show_due_live`)."""
         image = self.o3d.geometry.Image(np.ascontiguousarray(lf.image))
         with self._live_pending_lock:
             waiting = self._live_pending is not None
             self._live_pending = (lf, image)
             if waiting:
                 self.live_stats["frames_coalesced"] += 1
-        if not waiting:
+            post = (not waiting and time.monotonic() - self._live_shown_at
+                    >= LIVE_MIN_FRAME_INTERVAL_S)
+            self._live_pending_posted |= post
+        if post:
             self._post(self._show_pending_live, "show live frame")
+
+    def _show_due_live(self, now) -> None:
+        """(tick) Show a frame that came too soon after the last one, once its time has come."""
+        if (self._live_pending is not None and not self._live_pending_posted
+                and now - self._live_shown_at >= LIVE_MIN_FRAME_INTERVAL_S):
+            with self.gui_trace.span("show live frame (tick)"):
+                self._show_pending_live()
 
     def _show_pending_live(self) -> None:
         with self._live_pending_lock:
             pending, self._live_pending = self._live_pending, None
+            self._live_pending_posted = False
         if pending is not None:
             self._show_live(*pending)
 
@@ -164,6 +186,7 @@ class LiveMixin:
         elif not lf.moving:
             tr.event("first still pass")
         self.live_frame = lf
+        self._live_shown_at = time.monotonic()
         with tr.span("live set_background"):
             self.preview.scene.set_background(list(self._background_color()), image)
         with tr.span("live force_redraw"):
