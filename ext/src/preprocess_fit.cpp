@@ -191,13 +191,14 @@ void reweight(const FitRow *rows, const double *ws, double *w, double *res, uint
     }
 }
 
-/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours;
-/// writes the projected position and the fit's normal. With `out_pull` and a quadric fit, also
+/// Fits point i of `points` (normals `normals`) over itself and its first k - 1 neighbours,
+/// reweighted against outliers when `robust`; writes the projected position and the fit's
+/// normal. With `out_pull` and a quadric fit, also
 /// the pull of one plane fit of this neighbourhood (below; left as it was otherwise). False:
 /// the fit failed or asked for a move beyond the neighbourhood.
 bool fit_point(const double *points, const float *normals, size_t i, const uint32_t *row,
-               uint32_t k, const FitOptions &opt, bool quadric, FitScratch &s, double *out_p,
-               float *out_n, double *out_pull) {
+               uint32_t k, const FitOptions &opt, bool quadric, bool robust, FitScratch &s,
+               double *out_p, float *out_n, double *out_pull) {
     const double *p = points + 3 * i;
     double h2 = kFitReach * kFitReach * dist2(points + 3 * size_t(row[k - 2]), p);
     if (!(h2 > 0)) return false;
@@ -228,7 +229,7 @@ bool fit_point(const double *points, const float *normals, size_t i, const uint3
     NormalEquations eq;
     bool ok = fit_terms(rows, w, k, terms, eq, c);
     if (!ok && terms == kMaxTerms) ok = fit_terms(rows, w, k, terms = 3, eq, c);
-    if (ok) {
+    if (ok && robust) {
         if (terms == kMaxTerms) reweight<kMaxTerms>(rows, ws, w, s.res.data(), k, opt, eq, c);
         else reweight<3>(rows, ws, w, s.res.data(), k, opt, eq, c);
     }
@@ -330,8 +331,25 @@ void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoi
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
-    std::stable_sort(order.begin(), order.end(),
-                     [&](uint32_t a, uint32_t b) { return priority[a] > priority[b]; });
+    // by priority, then index (`order` is ascending): the keys sorted side by side, in halves
+    // on two workers and merged (the indirect comparisons of a sort of the indices alone missed
+    // the cache at every step)
+    struct Key {
+        double priority;
+        uint32_t index;
+        bool operator<(const Key &o) const {
+            return priority > o.priority || (priority == o.priority && index < o.index);
+        }
+    };
+    std::vector<Key> keys(order.size());
+    for (size_t a = 0; a < order.size(); ++a) keys[a] = Key{priority[order[a]], order[a]};
+    const size_t half = keys.size() / 2;
+    parallel_for(2, 1, threads, [&](size_t b, size_t e, int) {
+        for (size_t h = b; h < e; ++h)
+            std::sort(keys.begin() + (h ? half : 0), h ? keys.end() : keys.begin() + half);
+    });
+    std::inplace_merge(keys.begin(), keys.begin() + half, keys.end());
+    for (size_t a = 0; a < keys.size(); ++a) order[a] = keys[a].index;
     std::fill(res.keep.begin(), res.keep.end(), 0);
     for (uint32_t i : order) {
         double r2 = thin * thin * res.spacing[i] * res.spacing[i];
@@ -428,8 +446,8 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
                 k = std::min<uint32_t>(k, nb.k + 1);
                 double *out_pull = unpull && quadric ? &pull[i] : nullptr;
                 if (out_pull) *out_pull = std::nan("");
-                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, scratch, &res.points[3 * i],
-                              &res.normals[3 * i], out_pull)) {
+                if (fit_point(sp, sn, i, nb.row(i), k, opt, quadric, final_pass, scratch,
+                              &res.points[3 * i], &res.normals[3 * i], out_pull)) {
                     moved[i] |= 1;
                     if (out_pull) last[i] = std::isfinite(*out_pull) ? kPullEstimated : kMoved;
                 }
