@@ -387,15 +387,9 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         r = self.window.content_rect
         area_w = r.width - int(PANEL_WIDTH_EM * self.em)
         area_h = r.height - int(STATUS_HEIGHT_EM * self.em)
-        if self._split_view():
+        if self.settings.display == "side":
             area_w //= 2
         return max(area_w, 1), max(area_h, 1)
-
-    def _split_view(self) -> bool:
-        """Side by side: the preview and the finished frame each take half the area. While the
-        viewport is live (ray traced) and no Render has finished, it takes the whole area: an
-        empty half beside the ray-traced picture would show nothing."""
-        return self.settings.display == "side" and (self.live is None or self.frame is not None)
 
     def _fit_viewport(self) -> None:
         """Live automation with a set width and height: size the window so that the preview (the
@@ -403,8 +397,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         a, s = self.automation, self.settings
         if a is None or not a.live or not (s.width and s.height):
             return
-        # live: the viewport is the whole area until a Render finishes (_split_view)
-        size = self.gui.Size(s.width + int(PANEL_WIDTH_EM * self.em),
+        n = 2 if s.display == "side" else 1
+        size = self.gui.Size(n * s.width + int(PANEL_WIDTH_EM * self.em),
                              s.height + int(STATUS_HEIGHT_EM * self.em))
         self.window.size = size
 
@@ -462,7 +456,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         area_h = r.height - status_h
         self.panel.frame = gui.Rect(r.x + area_w, r.y, panel_w, area_h)
         self.status.frame = gui.Rect(r.x + int(0.5 * em), r.y + area_h, r.width - em, status_h)
-        if self._split_view():
+        if self.settings.display == "side":
             half = area_w // 2
             self.preview.frame = gui.Rect(r.x, r.y, half, area_h)
             self.result.frame = gui.Rect(r.x + half, r.y, area_w - half, area_h)

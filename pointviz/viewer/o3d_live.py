@@ -108,7 +108,6 @@ class LiveMixin:
             self.live_label.text = "live: off (splat preview)"
             self._update_point_size(force=True)  # not kept up while the splats were hidden
         self._show_splats(not on)
-        self.window.set_needs_layout()  # side by side or not (_split_view)
         self.preview.force_redraw()
         self.chk_live.checked = on  # last: a callback it may fire finds the state already set
 
