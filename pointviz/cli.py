@@ -142,7 +142,14 @@ def _run(argv) -> tuple[int, bool]:
 
 
 def _one_line(exc: BaseException) -> str:
-    text = str(exc) or type(exc).__name__
+    """The error as one readable line: an OSError as "FILE: what" (its message when that already
+    names the file), without Python's "[Errno N]" prefix and repeated file name."""
+    if isinstance(exc, OSError) and exc.strerror:
+        text = exc.strerror
+        if exc.filename is not None and str(exc.filename) not in text:
+            text = f"{exc.filename}: {text}"
+    else:
+        text = str(exc) or type(exc).__name__
     return " ".join(text.split())
 
 

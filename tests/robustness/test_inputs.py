@@ -384,9 +384,12 @@ def test_cli_bad_inputs_print_one_line(tmp_path):
     problems = []
     for (name, _), (code, _out, err) in zip(CLI_CASES, results):
         lines = err.strip().splitlines()
-        if code != 2 or "Traceback" in err or len(lines) != 1 or "error" not in err:
+        if (code != 2 or "Traceback" in err or len(lines) != 1 or "error" not in err
+                or "[Errno" in err):
             problems.append(f"{name}: exit {code}, stderr {err.strip()[-300:]!r}")
     assert not problems, "\n".join(problems)
+    exists_err = results[[n for n, _ in CLI_CASES].index("output-exists")][2]
+    assert exists_err.count("exists.png") == 1 and "--overwrite" in exists_err, exists_err
     assert (tmp_path / "exists.png").read_bytes() == b"precious"
     assert not (tmp_path / "o.png").exists() and not list(tmp_path.glob("*.part"))
 
