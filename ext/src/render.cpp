@@ -559,8 +559,8 @@ private:
             for (int i = 0; i < spp; ++i) nsum += n;
         }
         const Vec3 normal = hits ? unit_normal_.of(nsum) : Vec3{0, 0, 0};
-        const float alpha = spp == 1 ? float(hits) : float(hits) / float(spp);
-        const float object_alpha = spp == 1 ? 0.f : 0.f / float(spp);
+        // the general path's hits / spp and object hits / spp: every sample or none, no object
+        const float alpha = faded ? 1.f : 0.f, object_alpha = 0.f;
         const int tw = x1 - x0;
         if (!jitter) {
             plane_x_.resize(size_t(tw));
@@ -601,8 +601,8 @@ private:
                 float depth = 0.f;
                 Vec3 c = color, a = albedo;
                 if (sky_bg) c = a = Vec3{0, 0, 0};
-                for (int i = 0; i < spp; ++i) {
-                    if (!faded && !sky_bg) break;   // nothing depends on the direction
+                // (a plain background beyond no ground: nothing depends on the direction)
+                for (int i = 0; i < spp && (faded || sky_bg); ++i) {
                     const uint32_t s = set_.sample_offset + uint32_t(i);
                     float u = 0.5f, v = 0.5f;
                     if (jitter) {
@@ -620,7 +620,7 @@ private:
                 }
                 for (int k = 0; k < 3; ++k) out.color[3 * gp + k] = c[k];
                 out.alpha[gp] = alpha;
-                out.depth[gp] = hits == 1 ? depth : hits ? depth / float(hits) : kInf;
+                out.depth[gp] = hits ? depth / float(hits) : kInf;
                 for (int k = 0; k < 3; ++k) out.normal[3 * gp + k] = normal[k];
                 for (int k = 0; k < 3; ++k) out.albedo[3 * gp + k] = std::min(1.f, a[k]);
                 out.object_alpha[gp] = object_alpha;
