@@ -225,5 +225,7 @@ def test_bench_scaling_whole_process(tmp_path):
     # higher than the whole run's
     assert 0.2 < r["render_object_fraction"] < 0.9 and r["render_s"] > 0
     render_peak = r["peak_rss_render_per_surfel"]
-    assert render_peak is None or 0 < render_peak * n <= r["peak_rss_bytes"]
+    # compared per surfel, as the benchmark divides (when the render is the run's peak the two
+    # are the same quotient; multiplied back by n it can exceed the peak by a rounding)
+    assert render_peak is None or 0 < render_peak <= r["peak_rss_bytes"] / n
     assert (tmp_path / "scaling_whole_process.png").exists()
