@@ -26,7 +26,8 @@ import numpy as np
 
 from .. import interrupt
 from ..errors import InputError, require
-from . import model
+from ..images import srgb_to_linear
+from . import model, o3d_display
 from .model import PREVIEW_BACKGROUND
 from .o3d_actions import ActionsMixin
 from .o3d_automation import Automation, AutomationMixin, grab_window, save_frame_npz
@@ -54,9 +55,11 @@ PREVIEW_AMBIENT = 15000.0
 PROGRESS_REDRAW_INTERVAL_S = 1.0
 #: Ground quad half size, in scene diagonals.
 GROUND_HALF_SIZE = 2.0
+#: The preview ground's base colour (sRGB) by ground kind, before the preview's shading.
+PREVIEW_GROUND_COLORS = {"matte": (0.62, 0.64, 0.68), "mirror": (0.5, 0.54, 0.62)}
 #: The ground quad's texture coordinates are all GROUND_UV (the quad has no texture). They must
 #: be set: Open3D uploads a mesh without texture coordinates with its per-vertex UVs unwritten
-#: (whatever the heap held), and its lit material samples its blank textures with anisotropic
+#: (whatever the heap held), and its material samples its blank texture with anisotropic
 #: filtering, which Mesa's software rasteriser (llvmpipe) does by looping over every texel of
 #: the pixel's footprint: large garbage UVs made that millions of texels per ground pixel, and
 #: the window hung in its first draw (seen under load, where the heap's contents vary).
@@ -145,7 +148,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.em = em
         self.preview = gui.SceneWidget()
         self.preview.scene = self.rendering.Open3DScene(win.renderer)
-        self.preview.scene.set_background(list(PREVIEW_BACKGROUND))
+        self.preview.scene.set_background(o3d_display.background_color(PREVIEW_BACKGROUND))
         self.preview.set_on_mouse(self._on_mouse)
         # redraw the 3D scene only when it changes, not for every progress-bar update: with a
         # software rasteriser a scene redraw costs tens of ms and competes with the tracer
@@ -160,6 +163,9 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         view.set_antialiasing(False)
         view.set_ambient_occlusion(False)
         view.set_shadowing(False)
+        # nor post-processing: a full-screen pass per redraw that also re-maps the colours
+        # (the live frames came out ~10 levels off); the colours are encoded instead (o3d_display)
+        view.set_post_processing(o3d_display.POST_PROCESSING)
         self.result = gui.ImageWidget(self.o3d.geometry.Image(np.full((8, 8, 3), 40, np.uint8)))
         self.status = gui.Label("loading...")
 
@@ -339,9 +345,14 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         mesh.compute_vertex_normals()
         mesh.triangle_uvs = self.o3d.utility.Vector2dVector(np.full((6, 2), GROUND_UV))
         mat = self.rendering.MaterialRecord()
-        mat.shader = "defaultLit"
-        mat.base_color = [0.62, 0.64, 0.68, 1.0] if ground == "matte" else [0.5, 0.54, 0.62, 1.0]
-        mat.base_roughness = 0.9 if ground == "matte" else 0.15
+        # unlit, its colour shaded beforehand like the points' (a lit material's output would
+        # reach the window unencoded with post-processing off, o3d_display)
+        shaded = model.shade_colors(srgb_to_linear(np.array([PREVIEW_GROUND_COLORS[ground]])),
+                                    np.array([self.scene.up], dtype=np.float64), self.settings,
+                                    self.scene.up)
+        mesh.vertex_colors = self.o3d.utility.Vector3dVector(
+            np.repeat(o3d_display.point_colors(shaded), 4, axis=0))
+        mat.shader = "defaultUnlit"
         sc.add_geometry("ground", mesh, mat)
 
     def _load_preview(self) -> None:
@@ -359,7 +370,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         pcd = self.o3d.geometry.PointCloud()
         pcd.points = self.o3d.utility.Vector3dVector(data.points)
         colors = model.shade_colors(data.colors, data.normals, s, self.scene.up)
-        pcd.colors = self.o3d.utility.Vector3dVector(colors.astype(np.float64))
+        pcd.colors = self.o3d.utility.Vector3dVector(o3d_display.point_colors(colors))
         sc = self.preview.scene
         if sc.has_geometry("cloud"):
             sc.remove_geometry("cloud")
@@ -519,13 +530,13 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         if self.live is not None:
             return
         sc = self.preview.scene
+        color = o3d_display.background_color(PREVIEW_BACKGROUND)
         if on:
             rgb = np.round(np.asarray(PREVIEW_BACKGROUND[:3]) * 255).astype(np.uint8)
-            sc.set_background(list(PREVIEW_BACKGROUND),
-                              self.o3d.geometry.Image(np.ascontiguousarray(
-                                  np.broadcast_to(rgb, (8, 8, 3)))))
+            sc.set_background(color, self.o3d.geometry.Image(
+                o3d_display.background_image(np.broadcast_to(rgb, (8, 8, 3)))))
         else:
-            sc.set_background(list(PREVIEW_BACKGROUND), None)
+            sc.set_background(color, None)
         self.preview.force_redraw()
 
     def _drain_tick_queue(self, now) -> bool:

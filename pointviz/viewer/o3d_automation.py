@@ -26,8 +26,8 @@ BLANK_STD = 1.0
 #: Live view: a grab whose viewport differs from the live frame last handed to the window by more
 #: than this mean absolute difference (8-bit levels, see live_view_difference) still shows an
 #: older picture: under load the X server presents a redraw seconds late. The frame shown is
-#: ~10 levels off its image (the window's display of a scene background); a picture from the
-#: orbit, another camera, is ~40 off.
+#: within half a level of its image (o3d_display; ~10 levels with Open3D's post-processing on);
+#: a picture from the orbit, another camera, is ~40 off.
 LIVE_SHOWN_TOLERANCE = 20.0
 
 

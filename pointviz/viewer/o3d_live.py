@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import model
+from . import model, o3d_display
 from .live import LiveRenderer, orbit_camera
 from . import worker
 
@@ -103,7 +103,7 @@ class LiveMixin:
             self.live.shutdown()
             self._record_live_counts()
             self.live = None
-            sc.set_background(list(self._background_color()), None)
+            sc.set_background(self._background_color(), None)
             self.preview.enable_scene_caching(True)
             self.live_label.text = "live: off (splat preview)"
             self._update_point_size(force=True)  # not kept up while the splats were hidden
@@ -112,7 +112,8 @@ class LiveMixin:
         self.chk_live.checked = on  # last: a callback it may fire finds the state already set
 
     def _background_color(self):
-        return model.PREVIEW_BACKGROUND
+        """The background colour parameter (encoded for the preview's view, o3d_display)."""
+        return o3d_display.background_color(model.PREVIEW_BACKGROUND)
 
     def _show_splats(self, show: bool) -> None:
         sc = self.preview.scene
@@ -144,7 +145,7 @@ class LiveMixin:
         handler is posted only if none is waiting (a waiting one shows this frame instead) and
         the last frame was shown LIVE_MIN_FRAME_INTERVAL_S ago or more (else the tick shows it
         when that time has passed, :meth:`_show_due_live`)."""
-        image = self.o3d.geometry.Image(np.ascontiguousarray(lf.image))
+        image = self.o3d.geometry.Image(o3d_display.background_image(lf.image))
         with self._live_pending_lock:
             waiting = self._live_pending is not None
             self._live_pending = (lf, image)
@@ -187,7 +188,7 @@ class LiveMixin:
         self.live_frame = lf
         self._live_shown_at = time.monotonic()
         with tr.span("live set_background"):
-            self.preview.scene.set_background(list(self._background_color()), image)
+            self.preview.scene.set_background(self._background_color(), image)
         with tr.span("live force_redraw"):
             self.preview.force_redraw()
             self.window.post_redraw()  # the panel's live label too
