@@ -25,7 +25,7 @@ Pipeline for raw scans (no normals):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -251,7 +251,10 @@ def estimate_normals(
         rays, e.g. a PLY ``range_grid``; negative: none), with ``scan_index``. Neighbours within
         a scan are then found among the grid cells around a point instead of by a search of the
         whole scan (the same neighbours on surfaces the grid samples smoothly; see
-        ``scan_neighbours.h`` in the core).
+        ``scan_neighbours.h`` in the core). Scans without it whose points share one viewpoint
+        and lie within 60 degrees of their mean direction from it are binned by that
+        direction instead, into a grid whose ring search stops only where it is exact (the
+        same neighbours as the per-scan search, depth jumps included).
     up : (3,) array_like, optional
         Tie-break for open, flat parts without viewpoints.
     threads : int
@@ -260,8 +263,10 @@ def estimate_normals(
         Also return a dict: ``support`` ((n,) int, neighbourhood size used), ``spread`` ((n,)
         float, RMS distance of that neighbourhood from its plane), ``borrowed`` (points on a
         line or a stack of duplicates, which took the normal of their nearest neighbour that
-        has one) and ``arbitrary`` (such points with no such neighbour: a direction
-        perpendicular to their line).
+        has one), ``arbitrary`` (such points with no such neighbour: a direction
+        perpendicular to their line), and with scans the points whose neighbours within their
+        scan came from stored grids (``grid_neighbours``), grids of directions from their
+        viewpoint (``view_grid_neighbours``) or a KD-tree of the scan (``tree_neighbours``).
 
     Returns
     -------
@@ -416,6 +421,10 @@ class SurfaceFit:
     spacing : float
         Median distance to the nearest point of the same scan before the fit, the unit of
         ``summary``.
+    scan_neighbours : dict
+        How the normals' neighbours within scans were found (points per way, when normals were
+        estimated with scans): ``grid`` from the scans' stored grids, ``view_grid`` from grids
+        of directions from each scan's viewpoint, ``tree`` from a KD-tree per scan.
     """
 
     points: np.ndarray
@@ -426,6 +435,7 @@ class SurfaceFit:
     spacing: float
     stray_points: int = 0
     stray_clusters: int = 0
+    scan_neighbours: dict = field(default_factory=dict)
 
     @property
     def kept(self) -> int:
@@ -522,7 +532,10 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
                       shift=out["shift"], unmoved=int(out["unmoved"]),
                       spacing=float(np.median(out["spacing"])),
                       stray_points=int(out["stray_points"]),
-                      stray_clusters=int(out["stray_clusters"]))
+                      stray_clusters=int(out["stray_clusters"]),
+                      scan_neighbours={"grid": int(out["grid_neighbours"]),
+                                       "view_grid": int(out["view_grid_neighbours"]),
+                                       "tree": int(out["tree_neighbours"])})
 
 
 @dataclass

@@ -630,14 +630,14 @@ def test_conf_scan_with_nan_rows_drops_them_with_a_note(tmp_path, rng):
     assert np.isfinite(cloud.viewpoints).all()
 
 
-def _range_scan_bytes(pts, cells, rows, cols):
-    """An ASCII range scan as Stanford's scans are stored: its vertices, then a ``range_grid``
-    of rows x cols cells (row-major), each listing the vertex it holds (or none)."""
+def _range_scan_bytes(pts, cells, rows, cols, fmt="ascii"):
+    """A range scan as Stanford's scans are stored (ASCII, or ``fmt``): its vertices, then a
+    ``range_grid`` of rows x cols cells (row-major), each listing the vertex it holds (or none)."""
     grid = [[] for _ in range(rows * cols)]
     for v, c in enumerate(cells):
         if c >= 0:
             grid[c] = [v]
-    body = _ply_bytes("ascii", pts.astype(np.float32), extra_element=grid)
+    body = _ply_bytes(fmt, pts.astype(np.float32), extra_element=grid)
     head, data = body.split(b"end_header\n", 1)
     head = head.replace(b"element vertex",
                         f"obj_info num_cols {cols}\nobj_info num_rows {rows}\nelement vertex"
@@ -676,6 +676,40 @@ def test_conf_range_grid_gives_each_point_its_cell(tmp_path, rng):
     cloud2 = load(tmp_path / "g.conf", estimate=False)
     assert cloud2.scan_grid is None
     np.testing.assert_array_equal(cloud2.points, cloud.points)
+
+
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "binary_big_endian"])
+def test_binary_range_grid_reads_as_the_ascii_one(tmp_path, rng, fmt):
+    """A binary scan's range_grid gives the cells its ASCII writing gives; a record that lists
+    a vertex beyond the vertices, or a grid cut short, is named."""
+    rows, cols, n = 6, 9, 40
+    cells = rng.permutation(rows * cols)[:n]
+    cells[7] = -1
+    pts = rng.random((n, 3))
+    (tmp_path / "a.ply").write_bytes(_range_scan_bytes(pts, cells, rows, cols))
+    (tmp_path / "b.ply").write_bytes(_range_scan_bytes(pts, cells, rows, cols, fmt))
+    (tmp_path / "a.conf").write_text("bmesh a.ply 0 0 0 0 0 0 1\n")
+    (tmp_path / "b.conf").write_text("bmesh b.ply 0 0 0 0 0 0 1\n")
+    a = load(tmp_path / "a.conf", estimate=False)
+    b = load(tmp_path / "b.conf", estimate=False)
+    assert b.scan_grid is not None
+    np.testing.assert_array_equal(b.scan_grid, a.scan_grid)
+    np.testing.assert_array_equal(b.points, a.points)
+    data = (tmp_path / "b.ply").read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    grid_at = 12 * n  # the first record that lists a vertex
+    first = next(c for c in range(rows * cols) if cells.tolist().count(c))
+    at = grid_at + first  # one count byte per empty record before it
+    assert body[at] == 1
+    order = "<" if fmt == "binary_little_endian" else ">"
+    bad = body[:at + 1] + np.array([999], dtype=order + "i4").tobytes() + body[at + 5:]
+    (tmp_path / "b.ply").write_bytes(head + b"end_header\n" + bad)
+    with pytest.raises(FileFormatError, match=r"malformed PLY: range_grid row \d+ lists a "
+                                              r"vertex index"):
+        load(tmp_path / "b.conf")
+    (tmp_path / "b.ply").write_bytes(head + b"end_header\n" + body[:-6])
+    with pytest.raises(FileFormatError, match=r"truncated PLY"):
+        load(tmp_path / "b.conf")
 
 
 def test_scan_grid_normals_equal_the_scan_trees_on_virtual_scans():

@@ -442,6 +442,9 @@ nb::dict normals_dict(const NormalsOutput &o, size_t n) {
     d["borrowed"] = o.est.borrowed;
     d["arbitrary"] = o.est.arbitrary;
     d["components"] = o.orient.components;
+    d["grid_neighbours"] = o.grid.from_grid;
+    d["view_grid_neighbours"] = o.grid.from_view;
+    d["tree_neighbours"] = o.grid.from_tree;
     return d;
 }
 
@@ -846,6 +849,8 @@ NB_MODULE(_core, m) {
         d["stray_clusters"] = o.stray.clusters;
         if (!nrm) d["estimate"] = normals_dict(o.normals, v.n);
         d["grid_neighbours"] = o.normals.grid.from_grid;
+        d["view_grid_neighbours"] = o.normals.grid.from_view;
+        d["tree_neighbours"] = o.normals.grid.from_tree;
         return d;
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
        "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,

@@ -66,7 +66,9 @@ inline void bind_readers(nb::module_ &m) {
         .def_rw("transform", &TableSpec::transform)
         .def_rw("affine", &TableSpec::affine)
         .def_rw("grid_cells", &TableSpec::grid_cells)
-        .def_rw("grid_cols", &TableSpec::grid_cols);
+        .def_rw("grid_cols", &TableSpec::grid_cols)
+        .def_rw("grid_count", &TableSpec::grid_count)
+        .def_rw("grid_index", &TableSpec::grid_index);
     nb::exception<pointviz::TruncatedData>(m, "TruncatedData", PyExc_ValueError);
     nb::exception<pointviz::MalformedData>(m, "MalformedData", PyExc_ValueError);
 

@@ -99,10 +99,11 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     if (in.group && in.n > 1) {
         uint32_t ks = std::min<uint64_t>(nopt.k_max - 1, in.n - 1);
         NeighbourTable scan =
-            in.cell ? knn_within_grids(in.points, in.n, in.group, in.cell, ks, tree,
-                                       nopt.threads, &progress, &out.grid)
-                    : knn_within_groups(in.points, in.n, in.group, ks, tree, nopt.threads,
-                                        &progress);
+            in.cell || in.viewpoints
+                ? knn_within_grids(in.points, in.n, in.group, in.cell, in.viewpoints,
+                                   in.n_viewpoints, ks, tree, nopt.threads, &progress, &out.grid)
+                : knn_within_groups(in.points, in.n, in.group, ks, tree, nopt.threads,
+                                    &progress);
         out.est = estimate_normals(in.points, scan, nopt, &progress);
     } else {
         out.est = estimate_normals(in.points, *t, nopt, &progress);

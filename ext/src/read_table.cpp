@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <exception>
 #include <memory>
@@ -184,6 +185,12 @@ bool parse_index(const char *&p, const char *e, uint64_t &v) {
     return p == e || is_separator(*p, false);
 }
 
+/// Whether the spec asks for a range grid that Table::grid can hold.
+bool has_grid(const TableSpec &spec) {
+    return spec.grid_cells > 0 && spec.grid_cols > 0 &&
+           spec.grid_cells / spec.grid_cols < uint64_t(INT32_MAX);
+}
+
 /// One line [b, e) of a range grid: cell `c`'s count and row indices into `grid`.
 void parse_grid_line(const char *b, const char *e, uint64_t c, const TableSpec &spec,
                      uint64_t nrows, std::vector<int32_t> &grid) {
@@ -228,8 +235,7 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
         throw TruncatedData("the data ends after " + std::to_string(nrows) + " of the " +
                             std::to_string(spec.rows) + " rows");
     if (spec.rows >= 0) {  // lines after the rows, for the file's other elements
-        const bool grid = spec.grid_cells > 0 && spec.grid_cols > 0 &&
-                          spec.grid_cells / spec.grid_cols < uint64_t(INT32_MAX);
+        const bool grid = has_grid(spec);
         if (grid) out.grid.assign(2 * size_t(nrows), -1);
         uint64_t after = 0;
         const char *q = p;
@@ -266,6 +272,36 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
     first.rethrow(progress);
     merge_stats(parts, out.positions);
     progress.advance(buf.size() - advanced.load());  // newlines, skipped and trailing lines
+}
+
+/// A binary range grid: spec.grid_cells records from byte `at` of `buf` (each a count, then
+/// that many row indices), into out.grid.
+void read_binary_grid(const TableSpec &spec, const MappedBytes &buf, uint64_t at, uint64_t nrows,
+                      bool swap, Table &out) {
+    const size_t count_bytes = scalar_size(spec.grid_count);
+    const size_t index_bytes = scalar_size(spec.grid_index);
+    out.grid.assign(2 * size_t(nrows), -1);
+    const uint64_t size = buf.size();
+    for (uint64_t c = 0; c < spec.grid_cells; ++c) {
+        if (size - at < count_bytes)
+            throw TruncatedData("the range_grid ends after " + std::to_string(c) + " of its " +
+                                std::to_string(spec.grid_cells) + " cells");
+        double count = decode_scalar(buf.data() + at, spec.grid_count, swap);
+        at += count_bytes;
+        if (!(count >= 0) || count != std::floor(count))
+            throw MalformedData("range_grid row " + std::to_string(c) + " has no count");
+        if (uint64_t(count) > (size - at) / index_bytes)
+            throw TruncatedData("the range_grid ends in its cell " + std::to_string(c) +
+                                " of " + std::to_string(spec.grid_cells));
+        for (uint64_t m = 0; m < uint64_t(count); ++m, at += index_bytes) {
+            double v = decode_scalar(buf.data() + at, spec.grid_index, swap);
+            if (!(v >= 0 && v < double(nrows)) || v != std::floor(v))
+                throw MalformedData("range_grid row " + std::to_string(c) +
+                                    " lists a vertex index that is missing or out of range");
+            out.grid[2 * size_t(v)] = int32_t(c / spec.grid_cols);
+            out.grid[2 * size_t(v) + 1] = int32_t(c % spec.grid_cols);
+        }
+    }
 }
 
 void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
@@ -309,6 +345,8 @@ void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int 
     }, &progress.cancel);
     first.rethrow(progress);
     merge_stats(parts, out.positions);
+    if (has_grid(spec)) read_binary_grid(spec, buf, nrows * row_bytes, nrows, swap, out);
+    progress.advance(buf.size() - nrows * row_bytes);
 }
 
 void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress) {
@@ -322,7 +360,8 @@ void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress
         slot[spec.wanted[k]] = int(k);
     }
     uint64_t limit = ~uint64_t(0);
-    if (spec.encoding != Encoding::Ascii && spec.rows >= 0) {  // the rows, not what follows
+    // binary: the rows, not what follows (unless a range grid does)
+    if (spec.encoding != Encoding::Ascii && spec.rows >= 0 && !has_grid(spec)) {
         uint64_t row_bytes = 0;
         for (Scalar c : spec.columns) row_bytes += scalar_size(c);
         if (uint64_t(spec.rows) <= ~uint64_t(0) / row_bytes) limit = uint64_t(spec.rows) * row_bytes;

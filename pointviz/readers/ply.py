@@ -352,11 +352,11 @@ def points_plan(path: Path, affine=None) -> PointsPlan | None:
 
 
 def _range_grid(header: dict):
-    """``(cells, columns)`` of an ASCII range scan's ``range_grid`` element right after its
-    vertices (Stanford/Cyberware scans: ``obj_info num_cols`` x ``num_rows`` cells, each listing
-    the vertices it holds), else None."""
+    """``(cells, columns, count type, index type)`` of a range scan's ``range_grid`` element
+    right after its vertices (Stanford/Cyberware scans: ``obj_info num_cols`` x ``num_rows``
+    cells, each listing the vertices it holds), else None."""
     elements, info = header["elements"], header.get("obj_info", {})
-    if header["format"] != "ascii" or len(elements) < 2:
+    if len(elements) < 2:
         return None
     name, cells, props = elements[1]
     if name != "range_grid" or len(props) != 1 or not isinstance(props[0][1], tuple):
@@ -365,9 +365,11 @@ def _range_grid(header: dict):
         cols, rows = int(info.get("num_cols", "")), int(info.get("num_rows", ""))
     except ValueError:
         return None
-    if cols <= 0 or rows <= 0 or cols * rows != cells or props[0][1][2] not in _PLY_INT_TYPES:
+    _, count, index = props[0][1]
+    if (cols <= 0 or rows <= 0 or cols * rows != cells or count not in _PLY_INT_TYPES
+            or index not in _PLY_INT_TYPES):
         return None
-    return cells, cols
+    return cells, cols, table.PLY_SCALARS[count], table.PLY_SCALARS[index]
 
 
 def points_from_table(plan: PointsPlan, data) -> dict:

@@ -34,7 +34,7 @@ PCD_SCALARS = {
 
 def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: int,
          wanted: list[int], exact_columns: bool = True, commas: bool = False, affine=None,
-         grid: tuple[int, int] | None = None):
+         grid: tuple | None = None):
     """A ``_core.TableSpec``.
 
     Parameters
@@ -54,9 +54,11 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
         separate values too.
     affine : tuple of ((3, 3), (3,)) float, optional
         ``(m, t)``: positions ``p`` (rows) are returned as ``p @ m + t``.
-    grid : (cells, columns), optional
-        ASCII with a row count: the first ``cells`` lines after the rows are a PLY
-        ``range_grid`` of ``columns`` cells per grid row, read into :attr:`TableData.grid`.
+    grid : (cells, columns) or (cells, columns, count type, index type), optional
+        With a row count: the first ``cells`` lines (binary: records) after the rows are a PLY
+        ``range_grid`` of ``columns`` cells per grid row, read into :attr:`TableData.grid`;
+        binary records hold a count and that many row indices of the two core scalar types
+        (default ``"u8"`` and ``"i32"``).
     """
     s = _core.TableSpec()
     s.path = str(path)
@@ -74,6 +76,9 @@ def spec(path: Path, *, offset: int, encoding: str, columns: list[str], rows: in
             float(v) for v in np.asarray(t, dtype=np.float64).reshape(3)]
     if grid is not None:
         s.grid_cells, s.grid_cols = int(grid[0]), int(grid[1])
+        if len(grid) > 2:
+            s.grid_count = getattr(_core.Scalar, grid[2])
+            s.grid_index = getattr(_core.Scalar, grid[3])
     return s
 
 

@@ -197,8 +197,8 @@ void test_grid_neighbours_match_brute_force_within_scan() {
     std::vector<uint32_t> ref;
     GridNeighbourStats st;
     for (int threads : {1, 2, 3}) {
-        NeighbourTable t = knn_within_grids(p.data(), n, group.data(), cell.data(), k, all,
-                                            threads, nullptr, &st);
+        NeighbourTable t = knn_within_grids(p.data(), n, group.data(), cell.data(), nullptr, 0,
+                                            k, all, threads, nullptr, &st);
         CHECK(t.n == n && t.k == k, "grid table shape");
         if (threads == 1)
             ref = t.index;
@@ -234,6 +234,119 @@ void test_grid_neighbours_match_brute_force_within_scan() {
     CHECK(a.est.normals == b.est.normals, "normals from grid neighbours differ from the trees'");
     CHECK(b.grid.from_grid == st.from_grid, "normals' grid stats %zu, expected %zu",
           b.grid.from_grid, st.from_grid);
+}
+
+/// A range scan from `eye` looking at the origin: a grid of rays (rows x cols, `dr` and `dc`
+/// radians apart) cast at a unit sphere in front of the plane z = -1.6 (a depth jump at the
+/// sphere's outline); rays that hit neither (beyond |x|, |y| < 2.5) give no point. Depth noise
+/// of `noise` along the rays. Appends the points, their group and viewpoint.
+void ray_scan(const double eye[3], int rows, int cols, double dr, double dc, double noise,
+              unsigned seed, int32_t g, std::vector<double> &p, std::vector<int32_t> &group,
+              std::vector<double> &view) {
+    double w[3] = {-eye[0], -eye[1], -eye[2]};
+    double wl = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    for (double &c : w) c /= wl;
+    double u[3] = {w[1] * 0.3 - w[2] * 0.5, w[2] * 0.2 - w[0] * 0.3, w[0] * 0.5 - w[1] * 0.2};
+    double ul = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    for (double &c : u) c /= ul;
+    double v[3] = {w[1] * u[2] - w[2] * u[1], w[2] * u[0] - w[0] * u[2], w[0] * u[1] - w[1] * u[0]};
+    std::mt19937 gen(seed);
+    std::normal_distribution<double> N;
+    for (int r = 0; r < rows; ++r)
+        for (int c = 0; c < cols; ++c) {
+            double a = (r - rows / 2) * dr, b = (c - cols / 2) * dc;  // angles: a spherical grid
+            double d[3];
+            for (int x = 0; x < 3; ++x)
+                d[x] = std::cos(a) * std::cos(b) * w[x] + std::sin(a) * u[x] +
+                       std::cos(a) * std::sin(b) * v[x];
+            double ed = d[0] * eye[0] + d[1] * eye[1] + d[2] * eye[2];
+            double ee = eye[0] * eye[0] + eye[1] * eye[1] + eye[2] * eye[2];
+            double disc = ed * ed - (ee - 1.0), s = -1;
+            if (disc > 0) s = -ed - std::sqrt(disc);
+            if (s <= 0 && d[2] < 0) {
+                s = (-1.6 - eye[2]) / d[2];
+                if (std::fabs(eye[0] + s * d[0]) > 2.5 || std::fabs(eye[1] + s * d[1]) > 2.5)
+                    s = -1;
+            }
+            if (s <= 0) continue;
+            s += noise * N(gen);
+            for (int x = 0; x < 3; ++x) p.push_back(eye[x] + s * d[x]);
+            group.push_back(g);
+            view.insert(view.end(), eye, eye + 3);
+        }
+}
+
+void test_view_grid_neighbours_match_brute_force() {
+    // scans of a sphere before a plane (a depth jump) from four scanners, with and without
+    // noise; one samples 3x as densely along one axis as along the other (cells hold several
+    // points); and a cylinder seen from its axis (its points all around their scanner: no grid,
+    // its KD-tree); stored in a shuffled order
+    std::vector<double> p0, v0;
+    std::vector<int32_t> g0;
+    const double e0[3] = {0.4, -0.3, 4.0}, e1[3] = {-2.5, 1.0, 2.5}, e2[3] = {1.5, 2.0, 3.0},
+                 e3[3] = {5.0, 5.0, 0.0};
+    ray_scan(e0, 48, 48, 0.016, 0.016, 0.0, 1, 0, p0, g0, v0);
+    ray_scan(e1, 40, 44, 0.014, 0.016, 0.004, 2, 1, p0, g0, v0);
+    ray_scan(e2, 24, 72, 0.027, 0.009, 0.002, 3, 2, p0, g0, v0);
+    for (int r = 0; r < 12; ++r)  // a cylinder around its scanner at e3
+        for (int c = 0; c < 60; ++c) {
+            double t = 0.1047 * c;
+            p0.insert(p0.end(), {e3[0] + std::cos(t), e3[1] + std::sin(t), e3[2] + 0.1 * r});
+            g0.push_back(3);
+            v0.insert(v0.end(), e3, e3 + 3);
+        }
+    for (size_t i = 0; i < 5; ++i) {  // a group of 5 points: neighbours among all points
+        p0.insert(p0.end(), {0.5 + 0.01 * i, 0.3, 1.2});
+        g0.push_back(9);
+        v0.insert(v0.end(), e0, e0 + 3);
+    }
+    size_t n = g0.size();
+    std::vector<size_t> order(n);
+    std::iota(order.begin(), order.end(), size_t(0));
+    std::shuffle(order.begin(), order.end(), std::mt19937(6));
+    std::vector<double> p(3 * n), view(3 * n);
+    std::vector<int32_t> group(n);
+    for (size_t i = 0; i < n; ++i) {
+        for (int a = 0; a < 3; ++a) p[3 * i + a] = p0[3 * order[i] + a];
+        for (int a = 0; a < 3; ++a) view[3 * i + a] = v0[3 * order[i] + a];
+        group[i] = g0[order[i]];
+    }
+    size_t scan3 = std::count(group.begin(), group.end(), 3);
+    KnnTree all(p.data(), n, 2);
+    for (uint32_t k : {15u, 31u}) {
+        std::vector<uint32_t> ref;
+        GridNeighbourStats st;
+        for (int threads : {1, 2, 3}) {
+            NeighbourTable t = knn_within_grids(p.data(), n, group.data(), nullptr, view.data(),
+                                                n, k, all, threads, nullptr, &st);
+            CHECK(t.n == n && t.k == k, "view grid table shape");
+            if (threads == 1)
+                ref = t.index;
+            else
+                CHECK(t.index == ref, "view grid neighbours differ at %d threads", threads);
+        }
+        CHECK(st.from_grid == 0 && st.from_view + st.from_tree == n - 5,
+              "k %u view grid stats: %zu + %zu + %zu of %zu", k, st.from_grid, st.from_view,
+              st.from_tree, n - 5);
+        // the close scanner's scan is searched in its tree; of the others, only points seen
+        // nearly edge-on
+        CHECK(st.from_tree >= scan3 && st.from_view > (n - 5 - scan3) * 8 / 10,
+              "k %u: %zu from view grids, %zu from trees (%zu in the wide scan)", k,
+              st.from_view, st.from_tree, scan3);
+        size_t bad = 0;
+        for (size_t i = 0; i < n; ++i) {
+            std::vector<uint32_t> want =
+                group[i] == 9 ? brute_row(p, i, k) : brute_row(p, i, k, &group);
+            bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
+        }
+        CHECK(bad == 0, "k %u view grid: %zu of %zu rows differ from brute force within the scan",
+              k, bad, n);
+        // one viewpoint for all points: every scan binned from it (one row of viewpoints)
+        NeighbourTable one = knn_within_grids(p.data(), n, group.data(), nullptr, e0, 1, k, all,
+                                              2, nullptr, &st);
+        CHECK(one.index == ref, "k %u: neighbours from one viewpoint differ", k);
+        CHECK(st.from_view > 0, "k %u: no view grid from a single viewpoint", k);
+    }
 }
 
 void test_tiny_clouds() {
@@ -436,6 +549,7 @@ int main() {
     test_unsorted_rows_and_fused_radii();
     test_knn_within_groups_matches_brute_force();
     test_grid_neighbours_match_brute_force_within_scan();
+    test_view_grid_neighbours_match_brute_force();
     test_tiny_clouds();
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();

@@ -25,24 +25,52 @@ NeighbourTable knn_within_groups(const double *points, size_t n, const int32_t *
 /// unit length along one grid axis as along the other).
 constexpr int kGridMaxRing = 6;
 
+/// Rings of cells searched around a point by knn_within_grids in a grid of directions derived
+/// from its scan's viewpoint before the point is searched in its scan's KD-tree instead. Far
+/// more than a stored grid's: the search stops only where it is exact, which on a surface seen
+/// obliquely takes more rings, and a few points left over would cost their scan a KD-tree
+/// (6 rings left 0.7 % of the sphere scans' points over, and took 20 % more time).
+constexpr int kViewMaxRing = 16;
+
 /// What knn_within_grids did.
 struct GridNeighbourStats {
-    size_t from_grid = 0;  ///< points whose neighbours came from their grid cells
+    size_t from_grid = 0;  ///< points whose neighbours came from their stored grid cells
+    size_t from_view = 0;  ///< points whose neighbours came from a grid derived from a viewpoint
     size_t from_tree = 0;  ///< points searched in their scan's KD-tree instead
 };
 
-/// knn_within_groups for organised scans: `cell` ((n, 2) int32) holds each point's row and
-/// column in its scan's sampling grid (a range scanner's grid of rays; negative: none). A point's
-/// neighbours are searched ring by ring of grid cells around its own (Chebyshev distance 1, 2,
-/// ...), keeping the k nearest in space, until a ring that holds samples adds none of them to the
-/// k (then a farther ring cannot either on a surface the grid samples smoothly). Points without a
-/// cell, whose k were still changing at ring kGridMaxRing, or whose scan's cells are not one
-/// point per cell, are searched in a KD-tree of their scan as knn_within_groups does; groups of
-/// at most k points use `all` as there. On smooth surfaces the result equals knn_within_groups'
-/// (same (distance, index) order); across a depth jump the grid's neighbours are kept where the
-/// tree would have searched the whole scan. Deterministic for any thread count. Throws Cancelled.
+/// knn_within_groups for range scans: searched in a grid over each scan instead of a KD-tree.
+///
+/// Stored grids: `cell` ((n, 2) int32, or null) holds each point's row and column in its scan's
+/// sampling grid (a range scanner's grid of rays; negative: none). A point's neighbours are
+/// searched ring by ring of grid cells around its own (Chebyshev distance 1, 2, ...), keeping the
+/// k nearest in space, until a ring that holds samples adds none of them to the k (then a farther
+/// ring cannot either on a surface the grid samples smoothly). On smooth surfaces the result
+/// equals knn_within_groups'; across a depth jump the grid's neighbours are kept where the tree
+/// would have searched the whole scan.
+///
+/// Derived grids: a scan without stored cells (or whose cells are not one point per cell) whose
+/// points share one viewpoint (`viewpoints`, 1 or n rows, or null) and lie within 60 degrees of
+/// their mean direction from it is binned by direction: each point's image on the plane one unit
+/// in front of the viewpoint (a pinhole), in square cells of about 1.5 samples each (the size
+/// from the scan's occupied area). Cells may hold any number of points. The ring search there
+/// stops only when it is exact: a point outside the rings searched is at least the point's range
+/// x sin(angle) away, and the angle is bounded below by the image's distance to the rings' edge x
+/// cos^2 of the scan's widest angle off its mean direction (the plane stretches directions by at
+/// most sec^2 of that angle). The result equals knn_within_groups' for any surface, depth jumps
+/// included. Points still open at ring kViewMaxRing (seen edge-on) are searched in the scan's
+/// KD-tree; a scan where an even sample of its points needs many rings on average (seen mostly
+/// edge-on, or sampled far from evenly) is searched there whole.
+/// Speed: on 8 noisy scans of 125k points of a sphere, 15 nearest, 75 % of the CPU time of the
+/// scans' KD-trees; on the dragon's 15 scans 80 % (their stored grids, one point per cell and
+/// stopping at the first ring that adds nothing: 55 %).
+///
+/// Anything else (no cells and no single viewpoint, points behind or beside the viewpoint) is
+/// searched in a KD-tree of its scan as knn_within_groups does; groups of at most k points use
+/// `all` as there. Deterministic for any thread count. Throws Cancelled.
 NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *group,
-                                const int32_t *cell, uint32_t k, const KnnTree &all, int threads,
+                                const int32_t *cell, const double *viewpoints,
+                                size_t n_viewpoints, uint32_t k, const KnnTree &all, int threads,
                                 Progress *progress = nullptr, GridNeighbourStats *stats = nullptr);
 
 }  // namespace pointviz

@@ -44,11 +44,14 @@ struct TableSpec {
     /// in the common frame of a registration as it is read.
     bool transform = false;
     std::array<double, 12> affine{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
-    /// ASCII with a row count: the first `grid_cells` lines after the rows are a range scan's
-    /// grid (a PLY `range_grid` element: per cell, row-major with `grid_cols` cells per row, a
-    /// count and that many row indices), read into Table::grid. 0: none.
+    /// With a row count: the first `grid_cells` lines (binary: records) after the rows are a
+    /// range scan's grid (a PLY `range_grid` element: per cell, row-major with `grid_cols`
+    /// cells per row, a count and that many row indices), read into Table::grid. 0: none.
     uint64_t grid_cells = 0;
     uint32_t grid_cols = 0;
+    /// Binary: the scalar types of a grid record's count and of its row indices.
+    Scalar grid_count = Scalar::U8;
+    Scalar grid_index = Scalar::I32;
 };
 
 /// An allocator whose new elements are left uninitialised: the reader writes every value of a
