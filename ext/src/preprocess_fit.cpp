@@ -2,8 +2,9 @@
 #include "pointviz/surface_fit.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
-#include <numeric>
+#include <memory>
 
 #include "pointviz/parallel.h"
 #include "pointviz/pca.h"
@@ -303,24 +304,19 @@ void give_back_pull(FitResult &res, const NeighbourTable &nb, const std::vector<
 
 /// Greedy thinning of the fitted points `res` (positions and normals as fitted so far): visiting
 /// the points seen most head-on first (then by index), a point is dropped when a kept point
-/// lies within `thin` x its spacing. `among` (null: every point): only these points are
-/// visited; the others are dropped. Sets res.keep and res.kept.
+/// lies within `thin` x its spacing (thin_greedy). `among` (null: every point): only these
+/// points are visited; the others are dropped. Sets res.keep and res.kept.
 void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoints,
                  size_t n_viewpoints, double thin, const std::vector<uint32_t> *among,
                  int threads, Progress *progress) {
     size_t n = nb.n;
-    std::vector<uint32_t> order;
-    if (among) {
-        order = *among;
-    } else {
-        order.resize(n);
-        std::iota(order.begin(), order.end(), 0u);
-    }
-    std::vector<double> priority(n, 0.0);
+    std::vector<double> priority;
     if (viewpoints) {
-        parallel_for(order.size(), 4096, threads, [&](size_t b, size_t e, int) {
+        priority.assign(n, 0.0);
+        const size_t count = among ? among->size() : n;
+        parallel_for(count, 4096, threads, [&](size_t b, size_t e, int) {
             for (size_t a = b; a < e; ++a) {
-                size_t i = order[a];
+                size_t i = among ? (*among)[a] : a;
                 const double *vp = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
                 const double *q = res.points.data() + 3 * i;
                 const float *nn = res.normals.data() + 3 * i;
@@ -331,43 +327,137 @@ void thin_points(FitResult &res, const NeighbourTable &nb, const double *viewpoi
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);
     }
-    // by priority, then index (`order` is ascending): the keys sorted side by side, in halves
-    // on two workers and merged (the indirect comparisons of a sort of the indices alone missed
-    // the cache at every step)
-    struct Key {
-        double priority;
-        uint32_t index;
-        bool operator<(const Key &o) const {
-            return priority > o.priority || (priority == o.priority && index < o.index);
-        }
-    };
-    std::vector<Key> keys(order.size());
-    for (size_t a = 0; a < order.size(); ++a) keys[a] = Key{priority[order[a]], order[a]};
-    const size_t half = keys.size() / 2;
-    parallel_for(2, 1, threads, [&](size_t b, size_t e, int) {
-        for (size_t h = b; h < e; ++h)
-            std::sort(keys.begin() + (h ? half : 0), h ? keys.end() : keys.begin() + half);
-    });
-    std::inplace_merge(keys.begin(), keys.begin() + half, keys.end());
-    for (size_t a = 0; a < keys.size(); ++a) order[a] = keys[a].index;
-    std::fill(res.keep.begin(), res.keep.end(), 0);
-    for (uint32_t i : order) {
-        double r2 = thin * thin * res.spacing[i] * res.spacing[i];
-        const uint32_t *row = nb.row(i);
-        const double *q = res.points.data() + 3 * size_t(i);
-        bool redundant = false;
-        for (uint32_t m = 0; m < nb.k && !redundant; ++m) {
-            uint32_t j = row[m];
-            if (!res.keep[j]) continue;
-            double d2 = dist2(res.points.data() + 3 * size_t(j), q);
-            redundant = d2 < r2 || d2 == 0.0;
-        }
-        res.keep[i] = !redundant;
-    }
+    res.keep = thin_greedy(res.points.data(), nb, res.spacing.data(), thin,
+                           viewpoints ? priority.data() : nullptr,
+                           among ? among->data() : nullptr, among ? among->size() : 0, threads,
+                           progress);
     res.kept = size_t(std::count(res.keep.begin(), res.keep.end(), uint8_t(1)));
 }
 
 }  // namespace
+
+std::vector<uint8_t> thin_greedy(const double *points, const NeighbourTable &nb,
+                                 const double *spacing, double thin, const double *priority,
+                                 const uint32_t *among, size_t n_among, int threads,
+                                 Progress *progress) {
+    const size_t n = nb.n;
+    const uint32_t k = nb.k;
+    std::vector<uint8_t> keep(n, 0);
+    const size_t count = among ? n_among : n;
+    if (count == 0) return keep;
+    // Point i's fate depends only on the points of its row that come before it (higher
+    // priority, then lower index) and lie within its radius: it is kept when none of them is
+    // kept. Every point whose such neighbours are all decided can be decided, in any order and
+    // on any thread, and gets the serial visit's answer; rounds of this settle most points,
+    // and the rest are visited in order. State per point: open, kept, dropped (points outside
+    // `among` start dropped, as the serial visit never keeps them).
+    enum : uint8_t { kOpen = 0, kKept = 1, kDropped = 2 };
+    std::unique_ptr<std::atomic<uint8_t>[]> state(new std::atomic<uint8_t>[n]);
+    for (size_t i = 0; i < n; ++i)
+        state[i].store(among ? kDropped : kOpen, std::memory_order_relaxed);
+    if (among)
+        for (size_t a = 0; a < count; ++a) state[among[a]].store(kOpen, std::memory_order_relaxed);
+    auto before = [priority](uint32_t j, uint32_t i) {
+        if (!priority) return j < i;
+        return priority[j] > priority[i] || (priority[j] == priority[i] && j < i);
+    };
+    // an open point and the row positions of its open earlier neighbours within its radius
+    struct Open {
+        uint32_t i;
+        uint64_t wait;
+    };
+    // Decides `o` if it can: whether it did.
+    auto settle = [&](Open &o) {
+        const uint32_t *row = nb.row(o.i);
+        for (uint64_t w = o.wait; w; w &= w - 1) {
+            const int m = __builtin_ctzll(w);
+            const uint8_t s = state[row[m]].load(std::memory_order_relaxed);
+            if (s == kKept) {
+                state[o.i].store(kDropped, std::memory_order_relaxed);
+                return true;
+            }
+            if (s == kDropped) o.wait &= ~(uint64_t(1) << m);
+        }
+        if (o.wait) return false;
+        state[o.i].store(kKept, std::memory_order_relaxed);
+        return true;
+    };
+    // first round: every point's earlier neighbours within its radius (the serial visit's
+    // test: closer than the radius, or at the same position)
+    std::vector<Open> open;
+    const bool masked = k <= 64;
+    if (masked) {
+        constexpr size_t kGrain = 4096;
+        std::vector<std::vector<Open>> parts((count + kGrain - 1) / kGrain);
+        parallel_for(count, kGrain, threads, [&](size_t b, size_t e, int) {
+            std::vector<Open> &part = parts[b / kGrain];
+            for (size_t a = b; a < e; ++a) {
+                const uint32_t i = among ? among[a] : uint32_t(a);
+                const double r2 = thin * thin * spacing[i] * spacing[i];
+                const uint32_t *row = nb.row(i);
+                const double *q = points + 3 * size_t(i);
+                Open o{i, 0};
+                bool dropped = false;
+                for (uint32_t m = 0; m < k && !dropped; ++m) {
+                    const uint32_t j = row[m];
+                    const uint8_t s = state[j].load(std::memory_order_relaxed);
+                    if (s == kDropped || !before(j, i)) continue;
+                    const double d2 = dist2(points + 3 * size_t(j), q);
+                    if (!(d2 < r2 || d2 == 0.0)) continue;
+                    if (s == kKept) dropped = true;
+                    else o.wait |= uint64_t(1) << m;
+                }
+                if (dropped) state[i].store(kDropped, std::memory_order_relaxed);
+                else if (!settle(o)) part.push_back(o);
+            }
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+        size_t total = 0;
+        for (const auto &part : parts) total += part.size();
+        open.reserve(total);
+        for (const auto &part : parts) open.insert(open.end(), part.begin(), part.end());
+        // further rounds while they settle a good share of what is open
+        constexpr size_t kSerialBelow = 2048;
+        while (open.size() >= kSerialBelow) {
+            std::vector<uint8_t> done(open.size(), 0);
+            parallel_for(open.size(), kGrain, threads, [&](size_t b, size_t e, int) {
+                for (size_t a = b; a < e; ++a) done[a] = settle(open[a]);
+            }, progress ? &progress->cancel : nullptr);
+            check_cancel(progress);
+            size_t w = 0;
+            for (size_t a = 0; a < open.size(); ++a)
+                if (!done[a]) open[w++] = open[a];
+            const size_t settled = open.size() - w;
+            open.resize(w);
+            if (settled * 8 < w) break;
+        }
+    } else {
+        open.reserve(count);
+        for (size_t a = 0; a < count; ++a) open.push_back(Open{among ? among[a] : uint32_t(a), 0});
+    }
+    // the rest in the serial visit's order: each point's earlier neighbours are decided by then
+    std::sort(open.begin(), open.end(), [&](const Open &a, const Open &b) { return before(a.i, b.i); });
+    for (Open &o : open) {
+        if (masked) {
+            settle(o);
+            continue;
+        }
+        const uint32_t i = o.i;
+        const double r2 = thin * thin * spacing[i] * spacing[i];
+        const uint32_t *row = nb.row(i);
+        const double *q = points + 3 * size_t(i);
+        bool redundant = false;
+        for (uint32_t m = 0; m < k && !redundant; ++m) {
+            const uint32_t j = row[m];
+            if (state[j].load(std::memory_order_relaxed) != kKept) continue;
+            const double d2 = dist2(points + 3 * size_t(j), q);
+            redundant = d2 < r2 || d2 == 0.0;
+        }
+        state[i].store(redundant ? kDropped : kKept, std::memory_order_relaxed);
+    }
+    for (size_t i = 0; i < n; ++i) keep[i] = state[i].load(std::memory_order_relaxed) == kKept;
+    return keep;
+}
 
 FitResult fit_surface(const double *points, const float *normals, const uint32_t *support,
                       const NeighbourTable &nb, const int32_t *group, const double *viewpoints,

@@ -15,6 +15,7 @@
 #include "pointviz/preprocess.h"
 #include "pointviz/radii.h"
 #include "pointviz/scan_neighbours.h"
+#include "pointviz/surface_fit.h"
 #include "check.h"
 
 using namespace pointviz;
@@ -542,6 +543,83 @@ void test_radii_match_the_scalar_formula() {
     }
 }
 
+/// The serial greedy thinning (the oracle of thin_greedy): points visited by descending
+/// priority, then index; dropped when a kept point of the row lies within the radius.
+std::vector<uint8_t> thin_serial(const std::vector<double> &p, const NeighbourTable &nb,
+                                 const std::vector<double> &spacing, double thin,
+                                 const std::vector<double> *priority,
+                                 const std::vector<uint32_t> *among) {
+    size_t n = nb.n;
+    std::vector<uint32_t> order;
+    if (among) order = *among;
+    else for (size_t i = 0; i < n; ++i) order.push_back(uint32_t(i));
+    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+        double pa = priority ? (*priority)[a] : 0.0, pb = priority ? (*priority)[b] : 0.0;
+        return pa > pb || (pa == pb && a < b);
+    });
+    std::vector<uint8_t> keep(n, 0);
+    for (uint32_t i : order) {
+        double r2 = thin * thin * spacing[i] * spacing[i];
+        bool redundant = false;
+        for (uint32_t m = 0; m < nb.k && !redundant; ++m) {
+            uint32_t j = nb.row(i)[m];
+            if (!keep[j]) continue;
+            double e = d2(&p[3 * size_t(j)], &p[3 * i]);
+            redundant = e < r2 || e == 0.0;
+        }
+        keep[i] = !redundant;
+    }
+    return keep;
+}
+
+/// thin_greedy gives the serial visit's answer on overlapping layers (chains of points that
+/// wait on each other), with priorities that tie, none, a subset, duplicates, and rows longer
+/// than the parallel rounds take (k > 64), at any thread count.
+void test_thinning_matches_the_serial_visit() {
+    std::mt19937 g(21);
+    std::uniform_real_distribution<double> U(-0.5, 0.5);
+    std::vector<double> p;
+    // four jittered grids of the same square, each shifted: every point has neighbours of
+    // the other layers within its spacing
+    for (int layer = 0; layer < 4; ++layer)
+        for (int x = 0; x < 60; ++x)
+            for (int y = 0; y < 60; ++y)
+                p.insert(p.end(), {x + 0.3 * layer + 0.2 * U(g), y + 0.45 * layer + 0.2 * U(g),
+                                   0.05 * U(g)});
+    for (int c = 0; c < 30; ++c) p.insert(p.end(), p.begin() + 3 * c, p.begin() + 3 * c + 3);
+    size_t n = p.size() / 3;
+    std::vector<double> spacing(n), smooth(n), tied(n);
+    for (size_t i = 0; i < n; ++i) {
+        spacing[i] = 0.9 + 0.2 * (U(g) + 0.5);
+        smooth[i] = std::cos(0.05 * p[3 * i]) * std::cos(0.03 * p[3 * i + 1]);  // long chains
+        tied[i] = std::floor(4 * (U(g) + 0.5));  // four values only
+    }
+    std::vector<uint32_t> subset;
+    for (size_t i = 0; i < n; ++i)
+        if (U(g) < 0.2) subset.push_back(uint32_t(i));
+    KnnTree tree(p.data(), n, 2);
+    for (uint32_t k : {31u, 70u}) {
+        NeighbourTable nb = knn_all(tree, p.data(), k, 2);
+        using Prio = const std::vector<double> *;
+        using Among = const std::vector<uint32_t> *;
+        for (Prio prio : {Prio(&smooth), Prio(&tied), Prio(nullptr)})
+            for (Among among : {Among(nullptr), Among(&subset)}) {
+                std::vector<uint8_t> want = thin_serial(p, nb, spacing, 0.75, prio, among);
+                size_t kept = std::count(want.begin(), want.end(), uint8_t(1));
+                CHECK(kept > 0 && kept < (among ? among->size() : n) * 3 / 4,
+                      "k %u: the layers should thin (%zu kept)", k, kept);
+                for (int threads : {1, 2, 4}) {
+                    std::vector<uint8_t> got = thin_greedy(
+                        p.data(), nb, spacing.data(), 0.75, prio ? prio->data() : nullptr,
+                        among ? among->data() : nullptr, among ? among->size() : 0, threads);
+                    CHECK(got == want, "k %u, %d threads, %s priority, %s: kept points differ "
+                          "from the serial visit", k, threads, prio == &smooth ? "smooth" :
+                          prio ? "tied" : "no", among ? "a subset" : "all points");
+                }
+            }
+    }
+}
+
 }  // namespace
 
 int main() {
@@ -555,6 +633,7 @@ int main() {
     test_cancel_stops_every_step();
     test_degenerate_neighbourhoods_give_finite_output();
     test_radii_match_the_scalar_formula();
+    test_thinning_matches_the_serial_visit();
     std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
                 pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;

@@ -78,4 +78,16 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
                       const NeighbourTable &nb, const int32_t *group, const double *viewpoints,
                       size_t n_viewpoints, const FitOptions &opt, Progress *progress = nullptr);
 
+/// The greedy thinning of fit_surface: visiting the points by descending `priority` (null: all
+/// equal), then ascending index, a point is dropped when a kept point of its row of `nb` lies
+/// within `thin` x its `spacing` of it (or at its position). `among` (n_among indices; null:
+/// every point): only these points are visited, the others are dropped. Returns keep (n,): 1
+/// for the kept points. Decided in parallel rounds (a point is decided once the neighbours it
+/// depends on are), the same answer as the serial visit for any thread count. Throws
+/// Cancelled.
+std::vector<uint8_t> thin_greedy(const double *points, const NeighbourTable &nb,
+                                 const double *spacing, double thin, const double *priority,
+                                 const uint32_t *among, size_t n_among, int threads,
+                                 Progress *progress = nullptr);
+
 }  // namespace pointviz
