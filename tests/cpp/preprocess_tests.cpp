@@ -63,7 +63,7 @@ void test_knn_matches_brute_force() {
         for (int x = 0; x < 5; ++x)
             for (int y = 0; y < 5; ++y) p.insert(p.end(), {3.0 + x, 3.0 + y, 0.0});
         size_t n = p.size() / 3;
-        for (uint32_t k : {1u, 8u, 33u}) {
+        for (uint32_t k : {1u, 8u, 15u, 31u, 33u}) {
             KnnTree tree(p.data(), n, 2);
             NeighbourTable t = knn_all(tree, p.data(), k, 3);
             size_t bad = 0;
