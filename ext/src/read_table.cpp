@@ -191,19 +191,30 @@ bool has_grid(const TableSpec &spec) {
            spec.grid_cells / spec.grid_cols < uint64_t(INT32_MAX);
 }
 
+/// The errors of a range grid's cell `c` (ASCII line or binary record alike).
+MalformedData grid_without_count(uint64_t c) {
+    return MalformedData("range_grid row " + std::to_string(c) + " has no count");
+}
+MalformedData grid_bad_index(uint64_t c) {
+    return MalformedData("range_grid row " + std::to_string(c) +
+                         " lists a vertex index that is missing or out of range");
+}
+
+/// Records that row `v` lies in the range grid's cell `c` (row-major, spec.grid_cols a row).
+void place_in_grid(std::vector<int32_t> &grid, uint64_t v, uint64_t c, const TableSpec &spec) {
+    grid[2 * v] = int32_t(c / spec.grid_cols);
+    grid[2 * v + 1] = int32_t(c % spec.grid_cols);
+}
+
 /// One line [b, e) of a range grid: cell `c`'s count and row indices into `grid`.
 void parse_grid_line(const char *b, const char *e, uint64_t c, const TableSpec &spec,
                      uint64_t nrows, std::vector<int32_t> &grid) {
     uint64_t count = 0, v = 0;
     const char *p = b;
-    if (!parse_index(p, e, count))
-        throw MalformedData("range_grid row " + std::to_string(c) + " has no count");
+    if (!parse_index(p, e, count)) throw grid_without_count(c);
     for (uint64_t m = 0; m < count; ++m) {
-        if (!parse_index(p, e, v) || v >= nrows)
-            throw MalformedData("range_grid row " + std::to_string(c) +
-                                " lists a vertex index that is missing or out of range");
-        grid[2 * v] = int32_t(c / spec.grid_cols);
-        grid[2 * v + 1] = int32_t(c % spec.grid_cols);
+        if (!parse_index(p, e, v) || v >= nrows) throw grid_bad_index(c);
+        place_in_grid(grid, v, c, spec);
     }
 }
 
@@ -288,18 +299,14 @@ void read_binary_grid(const TableSpec &spec, const MappedBytes &buf, uint64_t at
                                 std::to_string(spec.grid_cells) + " cells");
         double count = decode_scalar(buf.data() + at, spec.grid_count, swap);
         at += count_bytes;
-        if (!(count >= 0) || count != std::floor(count))
-            throw MalformedData("range_grid row " + std::to_string(c) + " has no count");
+        if (!(count >= 0) || count != std::floor(count)) throw grid_without_count(c);
         if (uint64_t(count) > (size - at) / index_bytes)
             throw TruncatedData("the range_grid ends in its cell " + std::to_string(c) +
                                 " of " + std::to_string(spec.grid_cells));
         for (uint64_t m = 0; m < uint64_t(count); ++m, at += index_bytes) {
             double v = decode_scalar(buf.data() + at, spec.grid_index, swap);
-            if (!(v >= 0 && v < double(nrows)) || v != std::floor(v))
-                throw MalformedData("range_grid row " + std::to_string(c) +
-                                    " lists a vertex index that is missing or out of range");
-            out.grid[2 * size_t(v)] = int32_t(c / spec.grid_cols);
-            out.grid[2 * size_t(v) + 1] = int32_t(c % spec.grid_cols);
+            if (!(v >= 0 && v < double(nrows)) || v != std::floor(v)) throw grid_bad_index(c);
+            place_in_grid(out.grid, uint64_t(v), c, spec);
         }
     }
 }
