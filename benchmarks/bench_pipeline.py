@@ -62,12 +62,20 @@ LOADER_POINTS = 1_000_000
 # that runs on another thread, beside the main thread's work (the radii beside the camera fit),
 # is kept as "<stage>_beside" and left out of the sum; the main thread's wait for it is a stage.
 TIMED_CLI = r"""
-import json, sys, threading, time
+import json, os, sys, threading, time
 t_start = time.perf_counter()
-import pointviz, pointviz.cli, pointviz.io, pointviz.rendering, pointviz.surfels, pointviz.camera
+import pointviz.cli
+out = sys.argv.pop(1)  # the CLI sees its own arguments, as when run as a program
+# what main() does first when run as a program, before numpy loads (one OpenBLAS thread for
+# "render"); importing the stages to time below loads numpy before main() runs
+blas = getattr(pointviz.cli, "SINGLE_THREADED_BLAS", ())
+if getattr(pointviz.cli, "_named_command", lambda a: None)(sys.argv[1:]) in blas:
+    pointviz.cli._single_threaded_blas()
+import pointviz, pointviz.io, pointviz.rendering, pointviz.surfels, pointviz.camera
 import pointviz.denoise, pointviz.commands.common
 from pointviz.cloud import PointCloud
-t = {"imports": time.perf_counter() - t_start}
+t = {"imports": time.perf_counter() - t_start,
+     "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS")}
 local = threading.local()  # per thread: time of the timed stages inside the running one
 
 def timed(key, fn):
@@ -109,7 +117,6 @@ def render_and_record(*a, **kw):
     return frame
 pointviz.rendering.render = timed("render", render_and_record)
 pointviz.rendering.Frame.save = timed("write", pointviz.rendering.Frame.save)
-out = sys.argv.pop(1)  # the CLI sees its own arguments, as when run as a program
 
 def dump(code):
     t["exit_code"] = code
@@ -235,6 +242,7 @@ def start_to_png(conf: Path, out_dir: Path, repeat: int, extra: list[str]) -> di
         runs.append(t)
     keys = ["wall", *STAGES, "radii_beside", "build", "frame"]
     med = {k: median([r.get(k, 0.0) for r in runs]) for k in keys}
+    med["openblas_threads"] = runs[0].get("openblas_threads")
     med["anchor"] = median([r.get("build", 0.0) + r.get("frame", 0.0) for r in runs])
     med["ratio"] = median([r["wall"] / (r.get("build", 0.0) + r.get("frame", 0.0)) for r in runs])
     return med

@@ -59,3 +59,15 @@ def test_start_to_png_stages_add_up_to_the_wall_time(tmp_path):
     # the radii are estimated on a thread beside the camera fit, which then waits for them
     assert med["radii_beside"] > 0.0 and med["radii"] < 0.1 * med["radii_beside"]  # (cached reads)
     assert med["render"] >= med["frame"]
+
+
+@pytest.mark.slow
+def test_timed_cli_runs_with_one_blas_thread_as_the_cli_does(tmp_path, monkeypatch):
+    """The timed CLI imports numpy before the CLI's main(): it must still give ``render`` the
+    single OpenBLAS thread main() gives it when run as a program (idle BLAS workers spinning
+    beside the core's threads would be counted as pipeline time)."""
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    scans = bp.sphere_scans(seed=3, grid=20)
+    conf = bp.write_conf(tmp_path / "scans", scans, "binary_little_endian")
+    med = bp.start_to_png(conf, tmp_path, 1, ["--width", "16", "--height", "12", "--no-denoise"])
+    assert med["openblas_threads"] == "1"
