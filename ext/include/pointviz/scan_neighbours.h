@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "pointviz/knn.h"
 #include "pointviz/progress.h"
@@ -67,10 +68,34 @@ struct GridNeighbourStats {
 ///
 /// Anything else (no cells and no single viewpoint, points behind or beside the viewpoint) is
 /// searched in a KD-tree of its scan as knn_within_groups does; groups of at most k points use
-/// `all` as there. Deterministic for any thread count. Throws Cancelled.
+/// `all` as there. `need` (n,) optional: only the rows of points with need[i] != 0 are searched
+/// (those of groups of at most k points are always filled); the others are left to the caller.
+/// Deterministic for any thread count. Throws Cancelled.
 NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *group,
                                 const int32_t *cell, const double *viewpoints,
                                 size_t n_viewpoints, uint32_t k, const KnnTree &all, int threads,
-                                Progress *progress = nullptr, GridNeighbourStats *stats = nullptr);
+                                Progress *progress = nullptr, GridNeighbourStats *stats = nullptr,
+                                const uint8_t *need = nullptr);
+
+/// Neighbours within scans, and how many of each row hold.
+struct ScanRows {
+    NeighbourTable table;         ///< (n, k); row i valid in its first count[i] entries
+    std::vector<uint32_t> count;  ///< (n,) k, or fewer (at least k_least) for reused rows
+    size_t reused = 0;            ///< rows taken from the table across scans
+};
+
+/// knn_within_grids with the rows taken, where it can, from `across`, the sorted neighbours of
+/// every point among all points (knn_all): its entries of the point's own scan are the point's
+/// nearest within the scan, in the order the search within the scan gives them. A point with
+/// at least `k_least` such entries gets them (up to k; fewer than k: a shorter row), the
+/// others (and the points of scans of at most k points) are searched with knn_within_grids'
+/// `need`. With k_least == k the table equals knn_within_grids'. Deterministic for any thread
+/// count. Throws Cancelled.
+ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t *group,
+                                  const int32_t *cell, const double *viewpoints,
+                                  size_t n_viewpoints, uint32_t k, uint32_t k_least,
+                                  const NeighbourTable &across, const KnnTree &all, int threads,
+                                  Progress *progress = nullptr,
+                                  GridNeighbourStats *stats = nullptr);
 
 }  // namespace pointviz
