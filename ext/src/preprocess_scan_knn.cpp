@@ -506,6 +506,7 @@ ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t 
         out.count[i] = found[i];
         ++out.reused;
     }
+    if (stats) stats->from_across = out.reused;
     return out;
 }
 
