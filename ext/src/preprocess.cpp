@@ -100,8 +100,8 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
         uint32_t ks = std::min<uint64_t>(nopt.k_max - 1, in.n - 1);
         if (t && (in.cell || in.viewpoints)) {
             // a row of the table across scans that holds kScanRowsLeast or more of the point's
-            // own scan gives its nearest within the scan (up to ks; the same neighbours, in the
-            // same order, as a search there): only the other points are searched
+            // own scan gives its nearest within the scan (up to ks; in the order a search
+            // there gives them): only the other points are searched
             ScanRows rows = knn_within_grids_reusing(
                 in.points, in.n, in.group, in.cell, in.viewpoints, in.n_viewpoints, ks,
                 std::min(ks, kScanRowsLeast), *t, tree, nopt.threads, &progress, &out.grid);

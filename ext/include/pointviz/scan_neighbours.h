@@ -100,8 +100,10 @@ struct ScanRows {
 /// nearest within the scan, in the order the search within the scan gives them. A point with
 /// at least `k_least` such entries gets them (up to k; fewer than k: a shorter row), the
 /// others (and the points of scans of at most k points) are searched with knn_within_grids'
-/// `need`. With k_least == k the table equals knn_within_grids'. Deterministic for any thread
-/// count. Throws Cancelled.
+/// `need`. With k_least == k the table equals knn_within_grids' wherever that search is exact
+/// (derived grids and trees everywhere; stored grids except across a depth jump, where their
+/// search keeps the grid's neighbours and a reused row has the nearest in space: the dragon's
+/// fit output was the same either way). Deterministic for any thread count. Throws Cancelled.
 ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t *group,
                                   const int32_t *cell, const double *viewpoints,
                                   size_t n_viewpoints, uint32_t k, uint32_t k_least,
