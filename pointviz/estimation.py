@@ -86,8 +86,9 @@ COVER_GLOBAL_CAP = 4.0
 # Surface fit (the core's FitOptions, where the measurements behind these are). FIT_PASSES fits,
 # each on the previous one's output (planes, then a quadric), over at least FIT_MIN_SUPPORT
 # points, the last reweighted FIT_ROBUST_PASSES times with Welsch weights FIT_ROBUST_WIDTH RMS
-# residuals wide; then a point is dropped when a kept one lies within FIT_THIN x its spacing in
-# its own scan.
+# residuals wide (none by default: the reweighting made the virtual torus scans no better and
+# took 0.3-0.4 s of the 1M-point sphere scans' 4.7 s of CPU; FitOptions::robust_passes); then a
+# point is dropped when a kept one lies within FIT_THIN x its spacing in its own scan.
 # The normals the fit starts from (when the cloud has none) grow from NORMAL_K_MIN to at most
 # FIT_NORMAL_K_MAX points of the point's own scan, not NORMAL_K_MAX: the fit's plane pass
 # replaces them by the slope of a plane through FIT_MIN_SUPPORT points across all scans, so they
@@ -98,11 +99,15 @@ COVER_GLOBAL_CAP = 4.0
 # 16-32 points before / now: normal error 0.850 / 3.111 -> 0.837 / 2.946 degrees, holes 0.131 /
 # 0.045 % -> 0.129 / 0.037 %, depth error 4.57e-4 / 1.06e-3 -> 4.71e-4 / 1.01e-3. Fits of 24
 # points (a 23-neighbour search across scans) were worse (1.04 / 3.98 degrees), and so were
-# initial normals of at most 8 or 12 points at 0.4 % noise (5.37 / 3.17 degrees).
+# initial normals of at most 8 or 12 points at 0.4 % noise (5.37 / 3.17 degrees). Their
+# neighbours within the scan come from the 31 across all scans where those hold at least 11 of
+# the point's own scan (then up to 15 of them; kScanRowsLeast in the core's scan_neighbours.h):
+# where scans overlap a normal may rest on 12-15 points instead of 16, and the sphere scans'
+# within-scan search is left with 44 % of its points.
 FIT_NORMAL_K_MAX = 16
 FIT_MIN_SUPPORT = 32
 FIT_PASSES = 2
-FIT_ROBUST_PASSES = 1
+FIT_ROBUST_PASSES = 0
 FIT_ROBUST_WIDTH = 2.0
 FIT_THIN = 0.75
 
@@ -424,7 +429,9 @@ class SurfaceFit:
     scan_neighbours : dict
         How the normals' neighbours within scans were found (points per way, when normals were
         estimated with scans): ``grid`` from the scans' stored grids, ``view_grid`` from grids
-        of directions from each scan's viewpoint, ``tree`` from a KD-tree per scan.
+        of directions from each scan's viewpoint, ``tree`` from a KD-tree per scan,
+        ``across`` from the fit's neighbours across all scans (those holding enough of the
+        point's own scan, which need no search).
     """
 
     points: np.ndarray
@@ -466,7 +473,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
     Each point's neighbourhood (:data:`FIT_MIN_SUPPORT` points across all scans) is fitted, in
     the frame of the point's normal, by a weighted plane; the point moves onto it and takes its
     normal. ``passes`` fits run in turn,
-    each on the previous one's output; the last, reweighted against outliers, fits a height field
+    each on the previous one's output (the last reweighted against outliers ``robust_passes``
+    times, none by default); the last fits a height field
     ``z = a + b x + c y + d x^2 + e xy + f y^2`` (``quadric=False``: a plane again), which does
     not pull curved parts inward; it also gives back the pull of the plane passes before it
     (each plane lies on the concave side of a curved neighbourhood by its fit of the quadric's
@@ -535,7 +543,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
                       stray_clusters=int(out["stray_clusters"]),
                       scan_neighbours={"grid": int(out["grid_neighbours"]),
                                        "view_grid": int(out["view_grid_neighbours"]),
-                                       "tree": int(out["tree_neighbours"])})
+                                       "tree": int(out["tree_neighbours"]),
+                                       "across": int(out["across_neighbours"])})
 
 
 @dataclass

@@ -851,6 +851,7 @@ NB_MODULE(_core, m) {
         d["grid_neighbours"] = o.normals.grid.from_grid;
         d["view_grid_neighbours"] = o.normals.grid.from_view;
         d["tree_neighbours"] = o.normals.grid.from_tree;
+        d["across_neighbours"] = o.normals.grid.from_across;
         return d;
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
        "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,

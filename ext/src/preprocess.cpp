@@ -98,13 +98,24 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     if (need_all && !t) t = &(own = knn_all(tree, in.points, k, nopt.threads, &progress));
     if (in.group && in.n > 1) {
         uint32_t ks = std::min<uint64_t>(nopt.k_max - 1, in.n - 1);
-        NeighbourTable scan =
-            in.cell || in.viewpoints
-                ? knn_within_grids(in.points, in.n, in.group, in.cell, in.viewpoints,
-                                   in.n_viewpoints, ks, tree, nopt.threads, &progress, &out.grid)
-                : knn_within_groups(in.points, in.n, in.group, ks, tree, nopt.threads,
-                                    &progress);
-        out.est = estimate_normals(in.points, scan, nopt, &progress);
+        if (t && (in.cell || in.viewpoints)) {
+            // a row of the table across scans that holds kScanRowsLeast or more of the point's
+            // own scan gives its nearest within the scan (up to ks; in the order a search
+            // there gives them): only the other points are searched
+            ScanRows rows = knn_within_grids_reusing(
+                in.points, in.n, in.group, in.cell, in.viewpoints, in.n_viewpoints, ks,
+                std::min(ks, kScanRowsLeast), *t, tree, nopt.threads, &progress, &out.grid);
+            out.est = estimate_normals(in.points, rows.table, nopt, &progress, rows.count.data());
+        } else {
+            NeighbourTable scan =
+                in.cell || in.viewpoints
+                    ? knn_within_grids(in.points, in.n, in.group, in.cell, in.viewpoints,
+                                       in.n_viewpoints, ks, tree, nopt.threads, &progress,
+                                       &out.grid)
+                    : knn_within_groups(in.points, in.n, in.group, ks, tree, nopt.threads,
+                                        &progress);
+            out.est = estimate_normals(in.points, scan, nopt, &progress);
+        }
     } else {
         out.est = estimate_normals(in.points, *t, nopt, &progress);
     }

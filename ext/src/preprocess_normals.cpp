@@ -123,7 +123,8 @@ double sin2(const double *a, const double *b) {
 }  // namespace
 
 NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
-                              const NormalOptions &opt, Progress *progress) {
+                              const NormalOptions &opt, Progress *progress,
+                              const uint32_t *count) {
     size_t n = nb.n;
     if (opt.k_min < 3 || opt.k_max < opt.k_min)
         throw std::invalid_argument("normals: need 3 <= k_min <= k_max");
@@ -138,6 +139,10 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     for (double s = opt.k_min; uint32_t(s) < cap; s *= 1.5) sizes.push_back(uint32_t(s));
     sizes.push_back(cap);
     if (cap < 3) throw std::invalid_argument("normals: need at least 3 points");
+    if (count)
+        for (size_t i = 0; i < n; ++i)
+            if (count[i] + 1 < std::min(sizes.front(), cap) || count[i] > nb.k)
+                throw std::invalid_argument("normals: a row holds fewer neighbours than k_min - 1");
     std::vector<uint8_t> good(n, 0);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 1024;
@@ -165,8 +170,10 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
         std::vector<Rel> rel(cap);
         for (size_t i = b; i < e; ++i) {
             const uint32_t *row = nb.row(i);
+            // a shorter row: the sizes below its length, then its length
+            const uint32_t cap_i = count ? std::min(cap, count[i] + 1) : cap;
             // every size's neighbours, gathered once (each size reweights them)
-            relative(points, i, row, cap - 1, rel.data());
+            relative(points, i, row, cap_i - 1, rel.data());
             // the noise level: the median residual variance around the point. One small
             // neighbourhood's own can be near 0 by chance (a few noisy samples may happen to lie
             // on a plane); the median over the first ring is not.
@@ -179,9 +186,11 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
             Fit accepted[16];
             int n_acc = 0;
             for (uint32_t k : sizes) {
+                if (k > cap_i) k = cap_i;
+                const bool last = k == cap_i;
                 Fit f = k == k0 ? first[i].fit() : fit_plane(rel.data(), k);
                 if (!f.axes.ok) {
-                    if (n_acc == 0) continue;  // a line at small scale may become a plane
+                    if (n_acc == 0 && !last) continue;  // a line at small scale may become a plane
                     break;
                 }
                 bool agrees = true;
@@ -192,6 +201,7 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
                 if (n_acc < 16) accepted[n_acc++] = f;
                 best = f;
                 best_k = k;
+                if (last) break;
             }
             if (best_k) {
                 for (int a = 0; a < 3; ++a) out.normals[3 * i + a] = float(best.axes.n[a]);
@@ -208,18 +218,19 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     for (size_t i = 0; i < n; ++i) {
         if (good[i]) continue;
         const uint32_t *row = nb.row(i);
+        const uint32_t len = count ? count[i] : nb.k;
         uint32_t src = kNoIndex;
-        for (uint32_t m = 0; m < nb.k && src == kNoIndex; ++m)
+        for (uint32_t m = 0; m < len && src == kNoIndex; ++m)
             if (good[row[m]]) src = row[m];
-        out.support[i] = std::min<uint32_t>(nb.k + 1, opt.k_min);
+        out.support[i] = std::min<uint32_t>(len + 1, opt.k_min);
         if (src != kNoIndex) {
             for (int a = 0; a < 3; ++a) out.normals[3 * i + a] = out.normals[3 * size_t(src) + a];
             ++out.borrowed;
             continue;
         }
         double d[3] = {0, 0, 0};
-        if (nb.k) {
-            const double *q = points + 3 * size_t(row[nb.k - 1]), *p = points + 3 * i;
+        if (len) {
+            const double *q = points + 3 * size_t(row[len - 1]), *p = points + 3 * i;
             for (int a = 0; a < 3; ++a) d[a] = q[a] - p[a];
         }
         double l = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);

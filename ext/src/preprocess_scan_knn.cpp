@@ -387,7 +387,8 @@ NeighbourTable knn_within_groups(const double *points, size_t n, const int32_t *
 NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *group,
                                 const int32_t *cell, const double *viewpoints,
                                 size_t n_viewpoints, uint32_t k, const KnnTree &all, int threads,
-                                Progress *progress, GridNeighbourStats *stats) {
+                                Progress *progress, GridNeighbourStats *stats,
+                                const uint8_t *need) {
     NeighbourTable out;
     std::vector<std::vector<uint32_t>> scans = large_groups(points, n, group, k, all, out);
     size_t queries = 0;
@@ -406,14 +407,16 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
             const double *eye = scan_viewpoint(viewpoints, n_viewpoints, ids);
             if (cell && map.build(points, cell, ids)) {
                 // the points in grid order (each row is independent of the order)
+                size_t skipped = 0;
                 for (size_t p = 0; p < ids.size(); ++p) {
                     uint32_t i = ids[p];
-                    if (cell[2 * size_t(i)] < 0 || cell[2 * size_t(i) + 1] < 0)
+                    if (need && !need[i]) ++skipped;
+                    else if (cell[2 * size_t(i)] < 0 || cell[2 * size_t(i) + 1] < 0)
                         rest.push_back(uint32_t(p));
                 }
                 for (size_t o = 0; o < map.at.size(); ++o) {
                     uint32_t i = map.at[o];
-                    if (i == kNoIndex) continue;
+                    if (i == kNoIndex || (need && !need[i])) continue;
                     if (!grid_search(map, o, heap)) {
                         // ids is in index order
                         rest.push_back(uint32_t(std::lower_bound(ids.begin(), ids.end(), i) -
@@ -422,9 +425,14 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
                     }
                     std::copy(hidx.begin(), hidx.end(), out.index.begin() + size_t(i) * k);
                 }
-                from_grid.fetch_add(ids.size() - rest.size(), std::memory_order_relaxed);
+                from_grid.fetch_add(ids.size() - skipped - rest.size(), std::memory_order_relaxed);
             } else if (eye && view.build(points, ids, eye) && view.pays(heap)) {
+                size_t skipped = 0;
                 for (uint32_t t = 0; t < view.index.size(); ++t) {
+                    if (need && !need[view.index[t]]) {
+                        ++skipped;
+                        continue;
+                    }
                     if (view.search(t, heap) < 0) {
                         rest.push_back(view.member[t]);
                         continue;
@@ -432,7 +440,14 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
                     std::copy(hidx.begin(), hidx.end(),
                               out.index.begin() + size_t(view.index[t]) * k);
                 }
-                from_view.fetch_add(ids.size() - rest.size(), std::memory_order_relaxed);
+                from_view.fetch_add(ids.size() - skipped - rest.size(), std::memory_order_relaxed);
+            } else if (need) {
+                for (size_t p = 0; p < ids.size(); ++p)
+                    if (need[ids[p]]) rest.push_back(uint32_t(p));
+                if (!rest.empty()) scan_tree_rows(points, ids, &rest, k, out);
+                from_tree.fetch_add(rest.size(), std::memory_order_relaxed);
+                if (progress) progress->advance(ids.size());
+                continue;
             } else {
                 scan_tree_rows(points, ids, nullptr, k, out);
                 from_tree.fetch_add(ids.size(), std::memory_order_relaxed);
@@ -450,6 +465,48 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
         stats->from_grid = from_grid.load();
         stats->from_view = from_view.load();
     }
+    return out;
+}
+
+ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t *group,
+                                  const int32_t *cell, const double *viewpoints,
+                                  size_t n_viewpoints, uint32_t k, uint32_t k_least,
+                                  const NeighbourTable &across, const KnnTree &all, int threads,
+                                  Progress *progress, GridNeighbourStats *stats) {
+    if (across.n != n || k_least == 0 || k_least > k)
+        throw std::invalid_argument("neighbours within scans: bad table to reuse");
+    ScanRows out;
+    out.count.assign(n, k);
+    // the same-scan entries of each row of `across`, in its order: the nearest of the point's
+    // own scan, as the search within the scan ranks them (by distance, then index)
+    std::vector<uint32_t> found(n, 0);
+    std::vector<uint32_t> rows(n * size_t(k));
+    std::vector<uint8_t> need(n, 0);
+    std::map<int32_t, size_t> sizes;
+    for (size_t i = 0; i < n; ++i) ++sizes[group[i]];
+    parallel_for(n, 4096, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            const uint32_t *row = across.row(i);
+            uint32_t *dst = rows.data() + i * k;
+            uint32_t c = 0;
+            for (uint32_t m = 0; m < across.k && c < k; ++m)
+                if (group[row[m]] == group[i]) dst[c++] = row[m];
+            found[i] = c;
+        }
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    for (size_t i = 0; i < n; ++i)
+        need[i] = found[i] < k_least || sizes[group[i]] <= k;
+    out.table = knn_within_grids(points, n, group, cell, viewpoints, n_viewpoints, k, all,
+                                 threads, progress, stats, need.data());
+    for (size_t i = 0; i < n; ++i) {
+        if (need[i]) continue;
+        std::copy(rows.begin() + i * k, rows.begin() + i * k + found[i],
+                  out.table.index.begin() + i * k);
+        out.count[i] = found[i];
+        ++out.reused;
+    }
+    if (stats) stats->from_across = out.reused;
     return out;
 }
 

@@ -347,6 +347,48 @@ void test_view_grid_neighbours_match_brute_force() {
                                               2, nullptr, &st);
         CHECK(one.index == ref, "k %u: neighbours from one viewpoint differ", k);
         CHECK(st.from_view > 0, "k %u: no view grid from a single viewpoint", k);
+        // rows taken from the neighbours across scans where they hold k of the point's own
+        // scan: the same table; with k_least < k, shorter rows that are its rows' prefixes
+        NeighbourTable across = knn_all(all, p.data(), 2 * k, 2);
+        for (int threads : {1, 2}) {
+            ScanRows same = knn_within_grids_reusing(p.data(), n, group.data(), nullptr,
+                                                     view.data(), n, k, k, across, all, threads);
+            CHECK(same.table.index == ref, "k %u: reused rows differ from the search's", k);
+            CHECK(same.reused > n / 4 && std::count(same.count.begin(), same.count.end(), k) ==
+                                             ptrdiff_t(n),
+                  "k %u: %zu rows reused", k, same.reused);
+            ScanRows part = knn_within_grids_reusing(p.data(), n, group.data(), nullptr,
+                                                     view.data(), n, k, 7, across, all, threads);
+            size_t short_rows = 0, wrong = 0;
+            for (size_t i = 0; i < n; ++i) {
+                uint32_t c = part.count[i];
+                short_rows += c < k;
+                wrong += c < 7 || !std::equal(ref.begin() + i * k, ref.begin() + i * k + c,
+                                              part.table.index.begin() + i * k);
+            }
+            CHECK(wrong == 0 && short_rows > 0 && part.reused >= same.reused,
+                  "k %u: %zu partly reused rows wrong, %zu short", k, wrong, short_rows);
+            // normals over rows of given lengths: full lengths change nothing; a shorter row
+            // is fitted up to its length
+            NormalOptions nopt;
+            nopt.k_max = k + 1;
+            nopt.threads = threads;
+            NormalResult plain = estimate_normals(p.data(), same.table, nopt);
+            NormalResult full =
+                estimate_normals(p.data(), same.table, nopt, nullptr, same.count.data());
+            CHECK(plain.normals == full.normals && plain.support == full.support,
+                  "k %u: normals over full-length rows differ", k);
+            NormalResult shorter =
+                estimate_normals(p.data(), part.table, nopt, nullptr, part.count.data());
+            size_t over = 0, bad_normal = 0;
+            for (size_t i = 0; i < n; ++i) {
+                over += shorter.support[i] > part.count[i] + 1;
+                const float *q = &shorter.normals[3 * i];
+                bad_normal += !(std::fabs(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] - 1.f) < 1e-4f);
+            }
+            CHECK(over == 0 && bad_normal == 0, "k %u: short rows: %zu supports too large, %zu "
+                  "bad normals", k, over, bad_normal);
+        }
     }
 }
 

@@ -42,9 +42,11 @@ struct NormalResult {
 /// the threshold must stay well above that.
 constexpr double kPlanarMinGap = 1e-6;
 
-/// Normals of `points` ((n, 3), those of the tree `nb` was computed on). Deterministic for
-/// any thread count. Throws Cancelled.
+/// Normals of `points` ((n, 3), those of the tree `nb` was computed on). `count` (n,) optional:
+/// row i holds only its first count[i] entries (at least k_min - 1), and the largest size
+/// tried there is count[i] + 1. Deterministic for any thread count. Throws Cancelled.
 NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
-                              const NormalOptions &opt, Progress *progress = nullptr);
+                              const NormalOptions &opt, Progress *progress = nullptr,
+                              const uint32_t *count = nullptr);
 
 }  // namespace pointviz
