@@ -16,6 +16,7 @@ The dragon's cloud (pointviz.load of the shared data's conf) is cached in CACHE 
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -35,12 +36,11 @@ RANDOM_SEED = 1234
 REPEAT = 5
 
 
-def load(model: str):
+def load(model: str, data: Path):
     if model != "dragon":
         return getattr(shapes, model)(400000)
     if not CACHE.exists():
-        conf = common.require_data(Path(__file__).resolve().parents[2] / "shared" / "data",
-                                   common.DRAGON_CONF)
+        conf = common.require_data(data, common.DRAGON_CONF)
         cloud = pv.load(str(conf))
         np.savez(CACHE, p=np.asarray(cloud.points), n=np.asarray(cloud.normals),
                  r=np.asarray(cloud.radii))
@@ -48,8 +48,8 @@ def load(model: str):
     return pv.PointCloud(z["p"], normals=z["n"], radii=z["r"])
 
 
-def main(model: str, out: str) -> None:
-    cloud = load(model)
+def main(model: str, out: Path, data: Path) -> None:
+    cloud = load(model, data)
     scene = pv.SurfelScene(cloud, variant="full", threads=1)
     cam = pv.Camera.fit(cloud, width=640, height=480)
     primary = np.ascontiguousarray(np.asarray(cam.rays(), np.float32).reshape(-1, 6))
@@ -78,5 +78,15 @@ def main(model: str, out: str) -> None:
     print(json.dumps(res))
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("model", choices=("sphere", "torus", "dragon"))
+    p.add_argument("out", type=Path, help="JSON-lines file the result is appended to")
+    p.add_argument("--data", type=Path, default=common.default_data_dir(),
+                   help="shared data folder (the dragon's scans)")
+    return p.parse_args(argv)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1], sys.argv[2])
+    args = parse_args()
+    main(args.model, args.out, args.data)
