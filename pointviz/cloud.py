@@ -320,7 +320,8 @@ class PointCloud:
             radii = fit.radii.take(keep)
             radii.setflags(write=False)
             out._radii = radii
-        out.notes.append(fit.summary())
+        summary = fit.summary()
+        out.notes.append(summary)
         shift = float(fit.shift.mean())
         out.fit_report = {
             "points_in": len(fit.keep),
@@ -330,7 +331,7 @@ class PointCloud:
             "unmoved": fit.unmoved,
             "stray_points": fit.stray_points,
             "stray_clusters": fit.stray_clusters,
-            "summary": fit.summary(),
+            "summary": summary,
         }
         return out
 

@@ -191,8 +191,9 @@ def _threads(value) -> int:
 
 
 def _distinct(points: np.ndarray, what: str) -> None:
-    # one comparison pass (np.ptp along axis 0 of an (n, 3) array is 8x slower: 0.2 s at 1M)
-    if not (points != points[0]).any():
+    # the first rows nearly always settle it; else one comparison pass over all of them (np.ptp
+    # along axis 0 of an (n, 3) array is 8x slower: 0.2 s at 1M, the pass ~0.01 s)
+    if not ((points[:1024] != points[0]).any() or (points != points[0]).any()):
         raise InputError(f"{what}: cannot be estimated, all {len(points)} points coincide")
 
 
