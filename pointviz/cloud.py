@@ -301,20 +301,27 @@ class PointCloud:
         -------
         PointCloud
             Normals are the fit's (counted as estimated: ``has_normals`` stays as it was);
-            radii are estimated afresh on first access, for the new spacing.
+            radii too unless this cloud's were given (``fit_surface(radii=True)``: the coverage
+            radii for the new positions and spacing, their neighbours from the fit's).
         """
         from .estimation import FIT_THIN
 
         fit = fit_surface(
             self._points, self._normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
             scan_grid=self.scan_grid,
-            up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric, threads=threads)
+            up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric,
+            radii=not self._radii_given, threads=threads)
         keep = np.flatnonzero(fit.keep)
-        # every per-point attribute, estimated radii dropped; the points and normals the fit's
+        # every per-point attribute, estimated radii replaced; the points and normals the fit's
         # (this cloud's are not copied only to be replaced)
         out = self._subset(keep, points=fit.points.take(keep, axis=0),
                            normals=fit.normals.take(keep, axis=0))
-        out.notes.append(fit.summary())
+        if fit.radii is not None:
+            radii = fit.radii.take(keep)
+            radii.setflags(write=False)
+            out._radii = radii
+        summary = fit.summary()
+        out.notes.append(summary)
         shift = float(fit.shift.mean())
         out.fit_report = {
             "points_in": len(fit.keep),
@@ -324,7 +331,7 @@ class PointCloud:
             "unmoved": fit.unmoved,
             "stray_points": fit.stray_points,
             "stray_clusters": fit.stray_clusters,
-            "summary": fit.summary(),
+            "summary": summary,
         }
         return out
 

@@ -191,8 +191,9 @@ def _threads(value) -> int:
 
 
 def _distinct(points: np.ndarray, what: str) -> None:
-    # one comparison pass (np.ptp along axis 0 of an (n, 3) array is 8x slower: 0.2 s at 1M)
-    if not (points != points[0]).any():
+    # the first rows nearly always settle it; else one comparison pass over all of them (np.ptp
+    # along axis 0 of an (n, 3) array is 8x slower: 0.2 s at 1M, the pass ~0.01 s)
+    if not ((points[:1024] != points[0]).any() or (points != points[0]).any()):
         raise InputError(f"{what}: cannot be estimated, all {len(points)} points coincide")
 
 
@@ -432,6 +433,14 @@ class SurfaceFit:
         of directions from each scan's viewpoint, ``tree`` from a KD-tree per scan,
         ``across`` from the fit's neighbours across all scans (those holding enough of the
         point's own scan, which need no search).
+    radii : (n,) float32 or None
+        With ``fit_surface(radii=True)``: the coverage radii of the kept points on their fitted
+        positions and normals (0 for the others), as :func:`coverage_radii` of the kept points
+        would give them, with each point's :data:`COVER_K` nearest kept points taken from the
+        fit's own neighbours (see ``fit_surface``).
+    radii_searched : int
+        Kept points whose fit neighbours held fewer than :data:`COVER_K` kept points: their
+        neighbours were searched.
     """
 
     points: np.ndarray
@@ -443,6 +452,8 @@ class SurfaceFit:
     stray_points: int = 0
     stray_clusters: int = 0
     scan_neighbours: dict = field(default_factory=dict)
+    radii: np.ndarray | None = None
+    radii_searched: int = 0
 
     @property
     def kept(self) -> int:
@@ -467,7 +478,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
                 up=None,
                 thin: float = FIT_THIN, quadric: bool = True, passes: int = FIT_PASSES,
                 robust_passes: int = FIT_ROBUST_PASSES, strays: bool = True,
-                threads: int = 0) -> SurfaceFit:
+                radii: bool = False, threads: int = 0) -> SurfaceFit:
     """Move points onto a robust local fit of the surface across all scans; mark the redundant.
 
     Each point's neighbourhood (:data:`FIT_MIN_SUPPORT` points across all scans) is fitted, in
@@ -487,6 +498,16 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
     then runs among those.
     With ``strays``, the points of stray clusters (see :func:`stray_clusters`) are not kept
     either.
+    With ``radii``, the kept points' coverage radii (:func:`coverage_radii`, on the fitted
+    positions and normals) come from the same call: each kept point's :data:`COVER_K` nearest
+    kept points are the nearest, re-ranked on the fitted positions, among the kept points of
+    its fit neighbours (its :data:`FIT_MIN_SUPPORT` - 1 nearest points before the fit); a
+    point with fewer kept points there searches among all the kept points. The fit moves
+    points by a fraction of their spacing, so a kept point just outside the row can be nearer
+    than the last one taken (on the dragon's scans and the sphere scans of
+    benchmarks/bench_pipeline.py about 1 point in 25 takes one other neighbour than the
+    search would): the radii stay within the search's spread and cover as well
+    (tests/test_estimation.py, benchmarks/README.md).
 
     Parameters
     ----------
@@ -513,6 +534,8 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
         Reweightings of the last pass's fits, >= 0.
     strays : bool
         Drop stray clusters (default).
+    radii : bool
+        Also the kept points' coverage radii (see above).
     threads : int
 
     Returns
@@ -535,10 +558,20 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
         _count("robust_passes", robust_passes, 0),
         FIT_ROBUST_WIDTH, float(thin), bool(strays), _threads(threads),
         _grid(scan_grid, group, n) if nrm is None else None,
+        COVER_K if radii else 0, COVER_DIRECTIONS, COVER_MARGIN, COVER_CAP, COVER_GLOBAL_CAP,
     )
-    return SurfaceFit(points=out["points"], normals=out["normals"], keep=out["keep"].astype(bool),
+    keep = out["keep"].view(bool)
+    rad = out.get("radii")
+    if rad is not None:
+        bad = keep & ~(rad > 0)
+        if bad.any():  # stacks of duplicates: as coverage_radii resolves them, among the kept
+            kept = np.flatnonzero(keep)
+            est = estimate_radii(out["points"][kept], threads=threads)
+            rad[bad] = est[np.searchsorted(kept, np.flatnonzero(bad))]
+    return SurfaceFit(points=out["points"], normals=out["normals"], keep=keep,
                       shift=out["shift"], unmoved=int(out["unmoved"]),
-                      spacing=float(np.median(out["spacing"])),
+                      spacing=float(out["median_spacing"]),
+                      radii=rad, radii_searched=int(out["radii_searched"]),
                       stray_points=int(out["stray_points"]),
                       stray_clusters=int(out["stray_clusters"]),
                       scan_neighbours={"grid": int(out["grid_neighbours"]),

@@ -47,8 +47,8 @@ def test_quick_run_prints_frame_and_loader_tables(capsys):
 @pytest.mark.slow
 def test_start_to_png_stages_add_up_to_the_wall_time(tmp_path):
     """The timed CLI keeps each stage's own time (nested timed stages excluded): the stages are
-    non-negative and together no more than the process's wall time, and the fit, radii, tree
-    build, frame and write were all seen, the radii on their thread."""
+    non-negative and together no more than the process's wall time, and the fit, tree build,
+    frame and write were all seen (the radii within the fit)."""
     conf = bp.write_conf(tmp_path / "scans", bp.sphere_scans(seed=2, grid=30), "binary_little_endian")
     med = bp.start_to_png(conf, tmp_path, 1, ["--width", "32", "--height", "24", "--no-denoise"])
     stages = [med[k] for k in bp.STAGES]
@@ -56,8 +56,9 @@ def test_start_to_png_stages_add_up_to_the_wall_time(tmp_path):
     assert sum(stages) <= med["wall"]
     for key in ("fit", "build_total", "frame", "write"):
         assert med[key] > 0.0, key
-    # the radii are estimated on a thread beside the camera fit, which then waits for them
-    assert med["radii_beside"] > 0.0 and med["radii"] < 0.1 * med["radii_beside"]  # (cached reads)
+    # the fitted cloud's radii come from the fit's own call: the thread beside the camera fit
+    # and the wait for it find them there
+    assert med["radii_beside"] < 0.01 * med["fit"] and med["radii"] < 0.01 * med["fit"]
     assert med["render"] >= med["frame"]
 
 

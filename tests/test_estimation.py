@@ -170,6 +170,29 @@ def test_coverage_radii_leave_no_holes_on_random_samplings(seed):
     assert radii.mean() < 2.5 * spacing
 
 
+@pytest.mark.parametrize("seed, scans", [(1, 3), (2, 3), (3, 10)])
+def test_fit_radii_equal_the_search_where_nothing_moves_and_leave_no_holes(seed, scans):
+    """Overlapping uniform random samplings of a square (scans of a plane, no noise): the fit
+    leaves the points where they are, so the kept points' k nearest kept points among the
+    fit's rows are the search's wherever a row holds k of them (with 10 scans some hold fewer:
+    those are searched), and the radii from the fit's call equal coverage_radii of the kept
+    points exactly (the oracle); every probe inside is covered (brute force over all disks)."""
+    rng = np.random.default_rng(seed)
+    pts = np.c_[rng.uniform(0, 40, (9000, 2)), np.zeros(9000)]
+    fit = est.fit_surface(pts, viewpoints=[20, 20, 100],
+                          scan_index=np.repeat(np.arange(scans), 9000 // scans), radii=True)
+    assert np.abs(fit.points[:, 2]).max() < 1e-9
+    kept = np.flatnonzero(fit.keep)
+    assert 0.3 < len(kept) / len(pts) < 0.8
+    radii = fit.radii[kept]
+    assert np.all(radii > 0) and np.all(fit.radii[~fit.keep] == 0)
+    if scans > 3:
+        assert 0 < fit.radii_searched < len(kept)  # rows with too few kept points
+    np.testing.assert_array_equal(radii, est.coverage_radii(fit.points[kept], fit.normals[kept]))
+    probes = np.c_[rng.uniform(3, 37, (20_000, 2)), np.zeros(20_000)]
+    assert np.all(cover_ratio(fit.points[kept], None, radii, probes, [0, 0, 1]) <= 1.0)
+
+
 def test_coverage_radii_of_stray_points_are_capped(rng):
     """An isolated outlier far from a surface gets a radius of the order of the surface's, not
     of its distance to it."""
@@ -227,6 +250,26 @@ def test_fitted_cloud_reports_what_changed(torus_scans):
     # surfels from the fitted cloud cover the torus like those of the raw one
     assert np.all(fitted.radii > 0) and np.isfinite(fitted.radii).all()
     assert len(fitted.scan_index) == len(fitted)
+    assert not fitted.has_radii  # estimated (by the fit's call), not given
+
+
+def test_fit_radii_stand_in_for_the_search_on_noisy_scans(torus_scans):
+    """On noisy scans the fit moves points by a fraction of their spacing, so a row's kept
+    points can miss one the search on the fitted positions would take: the radii from the fit's
+    call equal those of coverage_radii on the kept points for nearly all points (measured
+    99.5 %), all positive, and their total disk area is within 1 % of the search's."""
+    cloud, _ = torus_scans
+    fit = est.fit_surface(cloud.points, viewpoints=cloud.viewpoints,
+                          scan_index=cloud.scan_index, radii=True)
+    kept = np.flatnonzero(fit.keep)
+    radii = fit.radii[kept]
+    ref = est.coverage_radii(fit.points[kept], fit.normals[kept])
+    assert np.all(radii > 0) and np.isfinite(radii).all()
+    assert np.mean(radii == ref) > 0.97
+    assert abs(np.sum(radii**2) / np.sum(ref**2) - 1) < 0.01
+    # the fitted cloud takes such radii as its own
+    fitted = cloud.fitted()
+    assert np.mean(fitted.radii == est.coverage_radii(fitted.points, fitted.normals)) > 0.97
 
 
 def test_fit_keeps_a_plane_flat_and_does_not_move_clean_points(rng):
@@ -316,9 +359,9 @@ def test_results_identical_for_any_thread_count(torus_scans):
         n = est.estimate_normals(p, threads=threads)
         n_scans = est.estimate_normals(p, viewpoints=vp, scan_index=si, threads=threads)
         r = est.coverage_radii(p, n, threads=threads)
-        f = est.fit_surface(p, viewpoints=vp, scan_index=si, threads=threads)
+        f = est.fit_surface(p, viewpoints=vp, scan_index=si, radii=True, threads=threads)
         runs.append((est.knn(p, 12, threads=threads)[1], n, n_scans, r, f.points, f.normals,
-                     f.keep))
+                     f.keep, f.radii))
     for other in runs[1:]:
         for a, b in zip(runs[0], other):
             np.testing.assert_array_equal(a, b)

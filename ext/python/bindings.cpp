@@ -457,6 +457,11 @@ NormalOptions normal_options(uint32_t k_min, uint32_t k_max, double confidence, 
     return o;
 }
 
+CoverOptions cover_options(uint32_t directions, double margin, double cap, double global_cap,
+                           int threads) {
+    return CoverOptions{directions, margin, cap, global_cap, threads};  // (in field order)
+}
+
 /// Orientation settings: neighbours linked, the edge-length weight, the undecided margin.
 using OrientArgs = std::tuple<uint32_t, double, double>;
 
@@ -796,12 +801,7 @@ NB_MODULE(_core, m) {
                                int threads) {
         PointsView v = points_view(points, std::nullopt, std::nullopt);
         check_normals(normals, v.n);
-        CoverOptions co;
-        co.directions = directions;
-        co.margin = margin;
-        co.cap = cap;
-        co.global_cap = global_cap;
-        co.threads = threads;
+        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads);
         std::vector<float> r = run_step([&](Progress &pr) {
             return radii_points(v, normals.data(), k, co, pr);
         });
@@ -816,7 +816,8 @@ NB_MODULE(_core, m) {
                             double confidence, OrientArgs orient, uint32_t min_support,
                             bool quadric, int passes, int robust_passes, double robust_width,
                             double thin, bool strays, int threads,
-                            std::optional<CArray<int32_t>> scan_grid) {
+                            std::optional<CArray<int32_t>> scan_grid, uint32_t cover_k,
+                            uint32_t directions, double margin, double cap, double global_cap) {
         PointsView v = points_view(points, viewpoints, scan_index);
         add_scan_grid(v, scan_grid);
         if (normals) check_normals(*normals, v.n);
@@ -833,8 +834,10 @@ NB_MODULE(_core, m) {
         const float *nrm = normals ? normals->data() : nullptr;
         StrayOptions so;
         so.threads = threads;
+        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads);
         FitOutput o = run_step([&](Progress &pr) {
-            return fit_points(v, nrm, no, oo, fo, pr, strays ? &so : nullptr);
+            return fit_points(v, nrm, no, oo, fo, pr, strays ? &so : nullptr,
+                              cover_k ? &co : nullptr, cover_k);
         });
         nb::dict d;
         d["points"] = to_array(o.fit.points, {v.n, 3});
@@ -842,6 +845,9 @@ NB_MODULE(_core, m) {
         d["keep"] = to_array(o.fit.keep, {v.n});
         d["shift"] = to_array(o.fit.shift, {v.n});
         d["spacing"] = to_array(o.fit.spacing, {v.n});
+        d["median_spacing"] = o.median_spacing;
+        if (cover_k) d["radii"] = to_array(o.radii, {v.n});
+        d["radii_searched"] = o.radii_searched;
         d["kept"] = o.fit.kept;
         d["unmoved"] = o.fit.unmoved;
         d["stray"] = to_array(o.stray.stray, {o.stray.stray.size()});
@@ -856,7 +862,9 @@ NB_MODULE(_core, m) {
     }, "points"_a, "normals"_a.none(), "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(),
        "k_min"_a, "k_max"_a, "confidence"_a, "orient"_a, "min_support"_a, "quadric"_a,
        "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "strays"_a = true, "threads"_a = 0,
-       "scan_grid"_a.none() = nb::none());
+       "scan_grid"_a.none() = nb::none(), "cover_k"_a = 0, "directions"_a = CoverOptions{}.directions,
+       "margin"_a = CoverOptions{}.margin, "cap"_a = CoverOptions{}.cap,
+       "global_cap"_a = CoverOptions{}.global_cap);
 
     m.def("stray_clusters", [](CArray<double> points, std::optional<CArray<int32_t>> scan_index,
                                uint32_t k, double reach, uint32_t min_points, double fraction,

@@ -27,6 +27,17 @@ KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &pr
 
 namespace {
 
+/// Median of `v` as numpy computes it (the mean of the two middle values of an even count).
+double median(std::vector<double> v) {
+    if (v.empty()) return 0.0;
+    const size_t h = v.size() / 2;
+    std::nth_element(v.begin(), v.begin() + h, v.end());
+    const double hi = v[h];
+    if (v.size() % 2) return hi;
+    const double lo = *std::max_element(v.begin(), v.begin() + h);
+    return (lo + hi) / 2.0;
+}
+
 /// A cloud's points (and viewpoints, scans) in the order of a KD-tree built on them, and that
 /// tree answering with positions in this order. Each point's neighbours are then close to it in
 /// memory: the per-point steps (normals, fit, radii) read neighbours from cache instead of from
@@ -168,7 +179,7 @@ StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &o
 
 FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
                      const OrientOptions &oopt, const FitOptions &fopt, Progress &progress,
-                     const StrayOptions *sopt) {
+                     const StrayOptions *sopt, const CoverOptions *copt, uint32_t cover_k) {
     Spatial sp(in, fopt.threads, progress);
     uint32_t k = std::max({nopt.k_max - 1, oopt.k, fopt.min_support - 1});
     NeighbourTable t = knn_all(sp.tree, sp.view.points, k, fopt.threads, &progress);
@@ -218,6 +229,17 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
         out.stray.stray = sp.to_input(out.stray.stray);
         out.stray.label = sp.to_input(out.stray.label);
     }
+    if (copt) {
+        // the kept points' radii on their fitted positions, their neighbours from the rows
+        RowRadii rr = coverage_radii_from_rows(f.points.data(), f.normals.data(), v.n,
+                                               f.keep.data(), t, cover_k, *copt, &progress);
+        out.radii.assign(v.n, 0.f);
+        for (size_t i = 0, a = 0; i < v.n; ++i)
+            if (f.keep[i]) out.radii[i] = rr.radii[a++];
+        out.radii = sp.to_input(out.radii);
+        out.radii_searched = rr.searched;
+    }
+    out.median_spacing = median(f.spacing);
     f.points = sp.to_input(f.points, 3);
     f.normals = sp.to_input(f.normals, 3);
     f.keep = sp.to_input(f.keep);

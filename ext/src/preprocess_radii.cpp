@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <utility>
 
 #if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
 #include <emmintrin.h>
@@ -154,6 +155,80 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
                  out[i] = cell_radius(points, normals, i, row, k, dir, opt);
              });
     apply_global_cap(out, opt);
+    return out;
+}
+
+RowRadii coverage_radii_from_rows(const double *points, const float *normals, size_t n,
+                                  const uint8_t *member, const NeighbourTable &rows, uint32_t k,
+                                  const CoverOptions &opt, Progress *progress) {
+    RowRadii out;
+    std::vector<uint32_t> members;
+    for (size_t i = 0; i < n; ++i)
+        if (member[i]) members.push_back(uint32_t(i));
+    const size_t m = members.size();
+    out.radii.assign(m, 0.f);
+    if (m < 2 || k == 0) return out;
+    k = uint32_t(std::min<size_t>(k, m - 1));
+    const Directions dir(opt.directions);
+    if (progress) progress->total.fetch_add(m, std::memory_order_relaxed);
+    constexpr size_t kGrain = 4096;
+    // from the rows: the k nearest members among each row's, by (squared distance, index) on
+    // `points` as the tree's search orders them; a row with fewer is marked for the search
+    std::vector<uint8_t> search(m, 0);
+    parallel_for(m, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+        // (squared distance, index) of a row's members: the k smallest are the neighbours
+        std::vector<std::pair<double, uint32_t>> cand(rows.k);
+        std::vector<uint32_t> idx(rows.k);
+        for (size_t a = b; a < e; ++a) {
+            const uint32_t i = members[a];
+            const uint32_t *row = rows.row(i);
+            uint32_t c = 0;
+            for (uint32_t r = 0; r < rows.k; ++r) idx[c] = row[r], c += member[row[r]] != 0;
+            if (c < k) {
+                search[a] = 1;
+                continue;
+            }
+            if (c > k) {  // the cell is the same for its neighbours in any order: select only
+                const double *p = points + 3 * size_t(i);
+                for (uint32_t r = 0; r < c; ++r) {
+                    const double *q = points + 3 * size_t(idx[r]);
+                    const double dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
+                    cand[r] = {dx * dx + dy * dy + dz * dz, idx[r]};
+                }
+                std::nth_element(cand.begin(), cand.begin() + (k - 1), cand.begin() + c);
+                for (uint32_t r = 0; r < k; ++r) idx[r] = cand[r].second;
+            }
+            out.radii[a] = cell_radius(points, normals, i, idx.data(), k, dir, opt);
+        }
+        if (progress) progress->advance(e - b);
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    std::vector<uint32_t> rest;
+    for (size_t a = 0; a < m; ++a)
+        if (search[a]) rest.push_back(uint32_t(a));
+    out.searched = rest.size();
+    if (!rest.empty()) {
+        // a tree of the members (on `points`) answering with their positions in `members`
+        std::vector<double> sub(3 * m);
+        for (size_t a = 0; a < m; ++a)
+            for (int c = 0; c < 3; ++c) sub[3 * a + c] = points[3 * size_t(members[a]) + c];
+        const KnnTree tree(sub.data(), m, opt.threads, progress);
+        std::vector<uint32_t> stored(m);
+        for (size_t r = 0; r < m; ++r) stored[tree.order()[r]] = uint32_t(r);
+        parallel_for(rest.size(), 256, opt.threads, [&](size_t b, size_t e, int) {
+            std::vector<double> d2(k);
+            std::vector<uint32_t> idx(k);
+            for (size_t r = b; r < e; ++r) {
+                const uint32_t a = rest[r];
+                uint32_t got = tree.query_near(sub.data() + 3 * size_t(a), stored[a], k, a,
+                                               idx.data(), d2.data());
+                for (uint32_t c = 0; c < got; ++c) idx[c] = members[idx[c]];
+                out.radii[a] = cell_radius(points, normals, members[a], idx.data(), got, dir, opt);
+            }
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+    }
+    apply_global_cap(out.radii, opt);
     return out;
 }
 

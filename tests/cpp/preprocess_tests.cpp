@@ -110,6 +110,47 @@ void test_unsorted_rows_and_fused_radii() {
     }
 }
 
+/// coverage_radii_from_rows with a table on the same positions as the radii (nothing moved):
+/// every member's k nearest members lie in its row wherever the row holds k members, so the
+/// radii equal coverage_radii of the members alone, bit for bit, for any thread count; members
+/// whose rows hold fewer are searched (none of the whole cloud's, some of every fifth point's).
+void test_radii_from_rows_equal_the_members_own() {
+    std::vector<double> p = sphere_points(1500, 9, 0.01);
+    for (int c = 0; c < 4; ++c) p.insert(p.end(), p.begin(), p.begin() + 3);  // duplicates
+    const size_t n = p.size() / 3;
+    std::vector<float> nrm(3 * n);
+    for (size_t i = 0; i < 3 * n; ++i) nrm[i] = float(p[i]);
+    KnnTree tree(p.data(), n, 2);
+    NeighbourTable rows = knn_all(tree, p.data(), 31, 2);
+    for (int every : {1, 2, 5}) {
+        std::vector<uint8_t> member(n);
+        std::vector<double> sub;
+        std::vector<float> sub_n;
+        for (size_t i = 0; i < n; ++i) {
+            member[i] = i % every == 0;
+            if (!member[i]) continue;
+            sub.insert(sub.end(), p.begin() + 3 * i, p.begin() + 3 * i + 3);
+            sub_n.insert(sub_n.end(), nrm.begin() + 3 * i, nrm.begin() + 3 * i + 3);
+        }
+        const size_t m = sub.size() / 3;
+        KnnTree sub_tree(sub.data(), m, 2);
+        CoverOptions co;
+        const std::vector<float> want = coverage_radii(sub.data(), sub_n.data(), sub_tree, 10, co);
+        for (int threads : {1, 3}) {
+            co.threads = threads;
+            RowRadii got = coverage_radii_from_rows(p.data(), nrm.data(), n, member.data(), rows,
+                                                    10, co);
+            CHECK(got.radii.size() == m &&
+                      std::memcmp(got.radii.data(), want.data(), 4 * m) == 0,
+                  "every %d, %d threads: the rows' radii differ from the members' own", every,
+                  threads);
+            CHECK((every == 1 ? got.searched == 0 : every < 5 || got.searched > 0) &&
+                      got.searched < m,
+                  "every %d: %zu of %zu members searched", every, got.searched, m);
+        }
+    }
+}
+
 void test_knn_within_groups_matches_brute_force() {
     // three interleaved "scans" of one sphere and a scan of 5 points (fewer than k + 1: its
     // points take their neighbours among all points)
@@ -413,7 +454,7 @@ void test_identical_for_any_thread_count() {
     double centre[3] = {0, 0, 0};
     std::vector<int32_t> group(v.n);
     for (size_t i = 0; i < v.n; ++i) group[i] = int32_t(i % 4);
-    std::vector<float> ref_n, ref_r, ref_gn;
+    std::vector<float> ref_n, ref_r, ref_gn, ref_fr;
     std::vector<double> ref_p;
     std::vector<uint8_t> ref_keep;
     std::vector<uint32_t> ref_label;
@@ -433,12 +474,17 @@ void test_identical_for_any_thread_count() {
         fo.threads = threads;
         StrayOptions so;  // the stray clusters run beside the fit
         so.threads = threads;
-        FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr, &so);
+        FitOutput f = fit_points(vv, nullptr, no, oo, fo, pr, &so, &co, 10);
         vv.group = group.data();  // normals from each scan's own neighbours
         NormalsOutput gn = normals_points(vv, no, oo, pr);
         if (threads == 1) {
             ref_n = nr.est.normals, ref_r = r, ref_p = f.fit.points, ref_gn = gn.est.normals;
-            ref_keep = f.fit.keep, ref_label = f.stray.label;
+            ref_keep = f.fit.keep, ref_label = f.stray.label, ref_fr = f.radii;
+            size_t bad = 0;
+            for (size_t i = 0; i < v.n; ++i)
+                bad += f.fit.keep[i] ? !(f.radii[i] > 0 && std::isfinite(f.radii[i]))
+                                     : f.radii[i] != 0;
+            CHECK(f.radii.size() == v.n && bad == 0, "fit radii: %zu bad", bad);
             size_t outward = 0;
             for (size_t i = 0; i < v.n; ++i)
                 outward += ref_n[3 * i] * p[3 * i] + ref_n[3 * i + 1] * p[3 * i + 1] +
@@ -450,6 +496,7 @@ void test_identical_for_any_thread_count() {
             CHECK(nr.est.normals == ref_n, "normals differ at %d threads", threads);
             CHECK(r == ref_r, "radii differ at %d threads", threads);
             CHECK(f.fit.points == ref_p, "fitted points differ at %d threads", threads);
+            CHECK(f.radii == ref_fr, "the fit's radii differ at %d threads", threads);
             CHECK(f.fit.keep == ref_keep && f.stray.label == ref_label,
                   "kept points or components differ at %d threads", threads);
             CHECK(gn.est.normals == ref_gn, "per-scan normals differ at %d threads", threads);
@@ -667,6 +714,7 @@ void test_thinning_matches_the_serial_visit() {
 int main() {
     test_knn_matches_brute_force();
     test_unsorted_rows_and_fused_radii();
+    test_radii_from_rows_equal_the_members_own();
     test_knn_within_groups_matches_brute_force();
     test_grid_neighbours_match_brute_force_within_scan();
     test_view_grid_neighbours_match_brute_force();

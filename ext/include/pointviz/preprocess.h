@@ -60,14 +60,21 @@ StrayResult stray_points(const PointsView &in, uint32_t k, const StrayOptions &o
                          Progress &progress);
 
 /// Normals (estimated and oriented if `normals` is null), then the surface fit and thinning;
-/// with `sopt` (non-null), points of stray clusters are not kept either.
+/// with `sopt` (non-null), points of stray clusters are not kept either. With `copt`
+/// (non-null), also the coverage radii of the kept points on their fitted positions and
+/// normals, over their `cover_k` nearest kept points taken from the fit's neighbour rows
+/// (coverage_radii_from_rows): the radii the fitted cloud would otherwise search for.
 struct FitOutput {
     NormalsOutput normals;     ///< empty when normals were given
     FitResult fit;
     StrayResult stray;         ///< empty without `sopt`
+    std::vector<float> radii;  ///< (n,) with `copt`: the kept points' radii, 0 elsewhere
+    size_t radii_searched = 0; ///< kept points whose radius needed a search (see above)
+    double median_spacing = 0; ///< median of fit.spacing (numpy's median)
 };
 FitOutput fit_points(const PointsView &in, const float *normals, const NormalOptions &nopt,
                      const OrientOptions &oopt, const FitOptions &fopt, Progress &progress,
-                     const StrayOptions *sopt = nullptr);
+                     const StrayOptions *sopt = nullptr, const CoverOptions *copt = nullptr,
+                     uint32_t cover_k = 0);
 
 }  // namespace pointviz

@@ -43,4 +43,22 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
                                   const KnnTree &tree, uint32_t k, const CoverOptions &opt,
                                   Progress *progress = nullptr);
 
+/// Radii of a subset of a cloud from a neighbour table of the whole cloud.
+struct RowRadii {
+    std::vector<float> radii;  ///< one per member, in ascending index order
+    size_t searched = 0;       ///< members whose row held fewer than k members: searched
+};
+
+/// The coverage radii of the points with member[i] != 0 (of `n` points with unit `normals`),
+/// as coverage_radii of the members alone with their `k` nearest members, taken from `rows`:
+/// a table of every point's nearest points (itself excluded) on other positions (e.g. the
+/// points before a surface fit moved them). Each member's neighbours are the k nearest on
+/// `points` (ties by index) among the members in its row, re-ranked there; a row holding fewer
+/// than k members is searched on a KD-tree of the members instead (built only then). Where the
+/// table's positions differ from `points` a member outside the row can be nearer than the k-th
+/// taken: the row stands in for the search. Deterministic. Throws Cancelled.
+RowRadii coverage_radii_from_rows(const double *points, const float *normals, size_t n,
+                                  const uint8_t *member, const NeighbourTable &rows, uint32_t k,
+                                  const CoverOptions &opt, Progress *progress = nullptr);
+
 }  // namespace pointviz
