@@ -6,6 +6,7 @@
 #include <mutex>
 
 #include "pointviz/dispatch.h"
+#include "pointviz/packet_trace.h"
 #include "pointviz/parallel.h"
 #include "pointviz/trace.h"
 #include "pointviz/wide_trace.h"
@@ -93,24 +94,40 @@ void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOpti
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
     const LodGates gates = lod_gates(opt);
+    // Groups of kPacket consecutive rays go through the packet traversal when it covers them
+    // (no statistics; packet_covers); the others one at a time.
+    const bool packets = opt.packets && !count && use_wide(tree, opt);
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
-        for (size_t i = b; i < e; ++i) {
-            Ray ray;
-            double len = local_ray(tree, rays + 6 * i, ray);
-            double rd[6];
-            for (int k = 0; k < 6; ++k) rd[k] = double(rays[6 * i + k]);
-            SurfaceHit h;
-            bool hit = false;
-            if (len == 0.0) {
-                ++local.invalid;
-                local.first_invalid = std::min(local.first_invalid, i);
-            } else {
-                ray.spread = pixel_angle;
-                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, gates, h, st); });
+        for (size_t g = b; g < e; g += kPacket) {
+            const int k = int(std::min(e - g, size_t(kPacket)));
+            Ray ray[kPacket];
+            double len[kPacket];
+            SurfaceHit h[kPacket];
+            bool valid = true;
+            for (int r = 0; r < k; ++r) {
+                len[r] = local_ray(tree, rays + 6 * (g + r), ray[r]);
+                ray[r].spread = pixel_angle;
+                valid = valid && len[r] != 0.0;
             }
-            local.hits += hit;
-            write_hit(out, i, hit, h, len, rd, tree);
+            const bool packet = packets && valid && packet_covers(tree, ray, k, opt);
+            if (packet) closest_hits_packet(tree, ray, k, opt, gates, h);
+            for (int r = 0; r < k; ++r) {
+                const size_t i = g + size_t(r);
+                double rd[6];
+                for (int c = 0; c < 6; ++c) rd[c] = double(rays[6 * i + c]);
+                bool hit = false;
+                if (len[r] == 0.0) {
+                    ++local.invalid;
+                    local.first_invalid = std::min(local.first_invalid, i);
+                } else if (packet) {
+                    hit = h[r].t != kInf;
+                } else {
+                    hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray[r], opt, gates, h[r], st); });
+                }
+                local.hits += hit;
+                write_hit(out, i, hit, h[r], len[r], rd, tree);
+            }
         }
         local.rays = e - b;
         merge(stats, local, m);
@@ -150,11 +167,22 @@ void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, s
 void intersect_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
                      const TraceOptions &opt, SurfaceHit *hits) {
     const LodGates gates = lod_gates(opt);
-    for (size_t i = 0; i < n; ++i) {
-        Ray r = rays[i];
-        r.o += offset;
-        NoStats ns;
-        closest_hit(tree, r, opt, gates, hits[i], ns);
+    const bool packets = opt.packets && use_wide(tree, opt);
+    for (size_t g = 0; g < n; g += kPacket) {
+        const int k = int(std::min(n - g, size_t(kPacket)));
+        Ray r[kPacket];
+        for (int j = 0; j < k; ++j) {
+            r[j] = rays[g + size_t(j)];
+            r[j].o += offset;
+        }
+        if (packets && packet_covers(tree, r, k, opt)) {
+            closest_hits_packet(tree, r, k, opt, gates, hits + g);
+            continue;
+        }
+        for (int j = 0; j < k; ++j) {
+            NoStats ns;
+            closest_hit(tree, r[j], opt, gates, hits[g + size_t(j)], ns);
+        }
     }
 }
 

@@ -55,6 +55,10 @@ struct TraceOptions {
     /// Traverse the wide tree (wide.h, wide_trace.h): two levels' bounds tested at once with
     /// SIMD, the binary traversal's decisions. false: the binary traversal, for comparison.
     bool wide = true;
+    /// Closest hits of coherent groups of rays (one origin, close directions: camera rays in
+    /// raster order) traverse the wide tree as packets (packet_trace.h); same results as one
+    /// ray at a time, bit for bit. false: one ray at a time, for comparison.
+    bool packets = true;
     /// Budget only: what the batch's secondary rays (width0 > 0) are for, which picks their
     /// error model (lod.h, RayKind); Camera: not said (the predictor's share, as for any ray).
     RayKind kind = RayKind::Camera;
@@ -462,13 +466,9 @@ inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, 
     }
 }
 
-/// Closest hit with interpolation over the disks facing the same way as the nearest one,
-/// within the depth window (paper section 2.1).
-template <class Stats>
-bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
-    detail::Gather g(ray.tmax, opt.window);
-    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+/// The hit a closest-hit traversal's gathered disks make (`g`): the blend of closest_hit.
+inline bool finish_closest(const SurfelTree &tree, const TraceOptions &opt, const detail::Gather &g,
+                           SurfaceHit &out) {
     out = SurfaceHit{};
     if (g.n == 0) return false;
     const detail::Candidate &best = g.c[0];
@@ -509,6 +509,16 @@ bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt
     out.index = (best.ref & detail::kNodeFlag) ? -2 : int32_t(best.ref);
     out.count = used;
     return true;
+}
+
+/// Closest hit with interpolation over the disks facing the same way as the nearest one,
+/// within the depth window (paper section 2.1).
+template <class Stats>
+bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
+    detail::Gather g(ray.tmax, opt.window);
+    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+    return finish_closest(tree, opt, g, out);
 }
 
 /// Any hit in [ray.tmin, ray.tmax]: shadow rays. Two-sided unless `cull` is asked for.
