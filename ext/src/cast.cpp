@@ -89,45 +89,79 @@ void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, d
     if (out.count) out.count[i] = uint8_t(h.count);
 }
 
+/// Closest hits of rays [b, e) in groups of kPacket: the groups packet_covers traverse as
+/// packets, the others one ray at a time (no statistics). Out of line: the single-ray loop of
+/// cast_batch keeps the compiler's inlining of its own traversal.
+template <class T>
+__attribute__((noinline)) void cast_packets(const SurfelTree &tree, const T *rays, size_t b, size_t e,
+                                            const TraceOptions &opt, const LodGates &gates,
+                                            float pixel_angle, const CastOutput &out,
+                                            BatchStats &local) {
+    for (size_t g = b; g < e; g += kPacket) {
+        const int k = int(std::min(e - g, size_t(kPacket)));
+        Ray ray[kPacket];
+        double len[kPacket];
+        bool valid = true;
+        for (int r = 0; r < k; ++r) {
+            len[r] = local_ray(tree, rays + 6 * (g + size_t(r)), ray[r]);
+            ray[r].spread = pixel_angle;
+            valid = valid && len[r] != 0.0;
+        }
+        SurfaceHit h[kPacket];
+        const bool packet = valid && packet_covers(tree, ray, k, opt);
+        if (packet) closest_hits_packet(tree, ray, k, opt, gates, h);
+        for (int r = 0; r < k; ++r) {
+            const size_t i = g + size_t(r);
+            double rd[6];
+            for (int c = 0; c < 6; ++c) rd[c] = double(rays[6 * i + c]);
+            bool hit = false;
+            if (len[r] == 0.0) {
+                ++local.invalid;
+                local.first_invalid = std::min(local.first_invalid, i);
+            } else if (packet) {
+                hit = h[r].t != kInf;
+            } else {
+                NoStats ns;
+                hit = closest_hit(tree, ray[r], opt, gates, h[r], ns);
+            }
+            local.hits += hit;
+            write_hit(out, i, hit, h[r], len[r], rd, tree);
+        }
+    }
+}
+
 template <class T>
 void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
     const LodGates gates = lod_gates(opt);
-    // Groups of kPacket consecutive rays go through the packet traversal when it covers them
-    // (no statistics; packet_covers); the others one at a time.
+    // Coherent groups of rays go through the packet traversal (packet_trace.h) when it covers
+    // them: no statistics, the wide traversal.
     const bool packets = opt.packets && !count && use_wide(tree, opt);
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
-        for (size_t g = b; g < e; g += kPacket) {
-            const int k = int(std::min(e - g, size_t(kPacket)));
-            Ray ray[kPacket];
-            double len[kPacket];
-            SurfaceHit h[kPacket];
-            bool valid = true;
-            for (int r = 0; r < k; ++r) {
-                len[r] = local_ray(tree, rays + 6 * (g + r), ray[r]);
-                ray[r].spread = pixel_angle;
-                valid = valid && len[r] != 0.0;
+        if (packets) {
+            cast_packets(tree, rays, b, e, opt, gates, pixel_angle, out, local);
+            local.rays = e - b;
+            merge(stats, local, m);
+            return;
+        }
+        for (size_t i = b; i < e; ++i) {
+            Ray ray;
+            double len = local_ray(tree, rays + 6 * i, ray);
+            double rd[6];
+            for (int k = 0; k < 6; ++k) rd[k] = double(rays[6 * i + k]);
+            SurfaceHit h;
+            bool hit = false;
+            if (len == 0.0) {
+                ++local.invalid;
+                local.first_invalid = std::min(local.first_invalid, i);
+            } else {
+                ray.spread = pixel_angle;
+                hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray, opt, gates, h, st); });
             }
-            const bool packet = packets && valid && packet_covers(tree, ray, k, opt);
-            if (packet) closest_hits_packet(tree, ray, k, opt, gates, h);
-            for (int r = 0; r < k; ++r) {
-                const size_t i = g + size_t(r);
-                double rd[6];
-                for (int c = 0; c < 6; ++c) rd[c] = double(rays[6 * i + c]);
-                bool hit = false;
-                if (len[r] == 0.0) {
-                    ++local.invalid;
-                    local.first_invalid = std::min(local.first_invalid, i);
-                } else if (packet) {
-                    hit = h[r].t != kInf;
-                } else {
-                    hit = counted(count, local, [&](auto &st) { return closest_hit(tree, ray[r], opt, gates, h[r], st); });
-                }
-                local.hits += hit;
-                write_hit(out, i, hit, h[r], len[r], rd, tree);
-            }
+            local.hits += hit;
+            write_hit(out, i, hit, h, len, rd, tree);
         }
         local.rays = e - b;
         merge(stats, local, m);

@@ -15,6 +15,11 @@
 #include "pointviz/lod.h"
 #include "pointviz/tree.h"
 
+/// Inlined whatever the compiler's inlining budget says: the traversal's hot steps. Translation
+/// units that instantiate several traversals (cast.cpp: single rays and packets) otherwise run
+/// past the budget and leave some of them out of line, a few percent per ray.
+#define POINTVIZ_HOT_INLINE __attribute__((always_inline)) inline
+
 namespace pointviz {
 
 /// How the disks around a hit are combined (section 2.1).
@@ -283,7 +288,7 @@ inline bool binary_step(const SurfelTree &tree, const Node &nd, const Ray &ray, 
 
 /// A node's cone test under culling: false when every normal of its subtree faces away (skip
 /// it); clears `cull` when every normal faces the ray (its subtree needs no more cone tests).
-inline bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
+POINTVIZ_HOT_INLINE bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
     if (cull && nd.has_cone()) {
         float c = dot(nd.axis(), ray.d), s = nd.cone();
         if (c > s) return false;      // every normal faces away
@@ -453,7 +458,7 @@ void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.
-inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
+POINTVIZ_HOT_INLINE void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
     if (ref & detail::kNodeFlag) {
         const Node &nd = tree.nodes()[ref & ~detail::kNodeFlag];
         n = normalize(nd.axis());
@@ -467,7 +472,8 @@ inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, 
 }
 
 /// The hit a closest-hit traversal's gathered disks make (`g`): the blend of closest_hit.
-inline bool finish_closest(const SurfelTree &tree, const TraceOptions &opt, const detail::Gather &g,
+POINTVIZ_HOT_INLINE bool finish_closest(const SurfelTree &tree, const TraceOptions &opt,
+                                       const detail::Gather &g,
                            SurfaceHit &out) {
     out = SurfaceHit{};
     if (g.n == 0) return false;

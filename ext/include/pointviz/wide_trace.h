@@ -200,7 +200,7 @@ inline void wide_box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const WideBoxNode
 /// Tests the ray against the six bounds of `w` within [ray.tmin, tfar], and their cones
 /// under culling (`cull`; away and toward stay 0 without).
 template <bool kSlabs>
-inline void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
+POINTVIZ_HOT_INLINE void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
     out.mask = out.away = out.toward = 0;
     for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
         if (g == 4 && !(out.mask & 2u)) break;  // B missed: its children do not count
@@ -247,9 +247,11 @@ namespace detail {
 
 /// The wide traversal's loop from a given state: the current entry `e` and the `sp` entries
 /// pending on `stack` (kStackSize entries). traverse_wide_impl starts it at the root; a ray
-/// that leaves a packet (packet_trace.h) continues in it from where the packet was.
+/// that leaves a packet (packet_trace.h) continues in it from where the packet was. Always
+/// inlined: a call costs the single-ray traversal a few percent (its stack then lives behind a
+/// pointer).
 template <bool kSlabs, class Policy, class Stats>
-inline void wide_loop(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+POINTVIZ_HOT_INLINE void wide_loop(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
                       const RaySetup &rs, Policy &policy, Stats &stats, StackEntry e,
                       StackEntry *stack, int sp) {
     const auto &nodes = tree.nodes();
