@@ -6,6 +6,7 @@
 #include <mutex>
 
 #include "pointviz/dispatch.h"
+#include "pointviz/packet_trace.h"
 #include "pointviz/parallel.h"
 #include "pointviz/trace.h"
 #include "pointviz/wide_trace.h"
@@ -88,13 +89,63 @@ void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, d
     if (out.count) out.count[i] = uint8_t(h.count);
 }
 
+/// Closest hits of rays [b, e) in groups of kPacket: the groups packet_covers traverse as
+/// packets, the others one ray at a time (no statistics). Out of line: the single-ray loop of
+/// cast_batch keeps the compiler's inlining of its own traversal.
+template <class T>
+__attribute__((noinline)) void cast_packets(const SurfelTree &tree, const T *rays, size_t b, size_t e,
+                                            const TraceOptions &opt, const LodGates &gates,
+                                            float pixel_angle, const CastOutput &out,
+                                            BatchStats &local) {
+    for (size_t g = b; g < e; g += kPacket) {
+        const int k = int(std::min(e - g, size_t(kPacket)));
+        Ray ray[kPacket];
+        double len[kPacket];
+        bool valid = true;
+        for (int r = 0; r < k; ++r) {
+            len[r] = local_ray(tree, rays + 6 * (g + size_t(r)), ray[r]);
+            ray[r].spread = pixel_angle;
+            valid = valid && len[r] != 0.0;
+        }
+        SurfaceHit h[kPacket];
+        const bool packet = valid && packet_covers(tree, ray, k, opt);
+        if (packet) closest_hits_packet(tree, ray, k, opt, gates, h);
+        for (int r = 0; r < k; ++r) {
+            const size_t i = g + size_t(r);
+            double rd[6];
+            for (int c = 0; c < 6; ++c) rd[c] = double(rays[6 * i + c]);
+            bool hit = false;
+            if (len[r] == 0.0) {
+                ++local.invalid;
+                local.first_invalid = std::min(local.first_invalid, i);
+            } else if (packet) {
+                hit = h[r].t != kInf;
+            } else {
+                NoStats ns;
+                hit = closest_hit(tree, ray[r], opt, gates, h[r], ns);
+            }
+            local.hits += hit;
+            write_hit(out, i, hit, h[r], len[r], rd, tree);
+        }
+    }
+}
+
 template <class T>
 void cast_batch(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats) {
     std::mutex m;
     const LodGates gates = lod_gates(opt);
+    // Coherent groups of rays go through the packet traversal (packet_trace.h) when it covers
+    // them: no statistics, the wide traversal.
+    const bool packets = opt.packets && !count && use_wide(tree, opt);
     parallel_for(n, kRayGrain, threads, [&](size_t b, size_t e, int) {
         BatchStats local;
+        if (packets) {
+            cast_packets(tree, rays, b, e, opt, gates, pixel_angle, out, local);
+            local.rays = e - b;
+            merge(stats, local, m);
+            return;
+        }
         for (size_t i = b; i < e; ++i) {
             Ray ray;
             double len = local_ray(tree, rays + 6 * i, ray);
@@ -150,11 +201,22 @@ void occluded_batch(const SurfelTree &tree, const T *rays, const float *t_max, s
 void intersect_local(const SurfelTree &tree, const Ray *rays, size_t n, Vec3 offset,
                      const TraceOptions &opt, SurfaceHit *hits) {
     const LodGates gates = lod_gates(opt);
-    for (size_t i = 0; i < n; ++i) {
-        Ray r = rays[i];
-        r.o += offset;
-        NoStats ns;
-        closest_hit(tree, r, opt, gates, hits[i], ns);
+    const bool packets = opt.packets && use_wide(tree, opt);
+    for (size_t g = 0; g < n; g += kPacket) {
+        const int k = int(std::min(n - g, size_t(kPacket)));
+        Ray r[kPacket];
+        for (int j = 0; j < k; ++j) {
+            r[j] = rays[g + size_t(j)];
+            r[j].o += offset;
+        }
+        if (packets && packet_covers(tree, r, k, opt)) {
+            closest_hits_packet(tree, r, k, opt, gates, hits + g);
+            continue;
+        }
+        for (int j = 0; j < k; ++j) {
+            NoStats ns;
+            closest_hit(tree, r[j], opt, gates, hits[g + size_t(j)], ns);
+        }
     }
 }
 

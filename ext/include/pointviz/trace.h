@@ -15,6 +15,11 @@
 #include "pointviz/lod.h"
 #include "pointviz/tree.h"
 
+/// Inlined whatever the compiler's inlining budget says: the traversal's hot steps. Translation
+/// units that instantiate several traversals (cast.cpp: single rays and packets) otherwise run
+/// past the budget and leave some of them out of line, a few percent per ray.
+#define POINTVIZ_HOT_INLINE __attribute__((always_inline)) inline
+
 namespace pointviz {
 
 /// How the disks around a hit are combined (section 2.1).
@@ -55,6 +60,10 @@ struct TraceOptions {
     /// Traverse the wide tree (wide.h, wide_trace.h): two levels' bounds tested at once with
     /// SIMD, the binary traversal's decisions. false: the binary traversal, for comparison.
     bool wide = true;
+    /// Closest hits of coherent groups of rays (one origin, close directions: camera rays in
+    /// raster order) traverse the wide tree as packets (packet_trace.h); same results as one
+    /// ray at a time, bit for bit. false: one ray at a time, for comparison.
+    bool packets = true;
     /// Budget only: what the batch's secondary rays (width0 > 0) are for, which picks their
     /// error model (lod.h, RayKind); Camera: not said (the predictor's share, as for any ray).
     RayKind kind = RayKind::Camera;
@@ -279,7 +288,7 @@ inline bool binary_step(const SurfelTree &tree, const Node &nd, const Ray &ray, 
 
 /// A node's cone test under culling: false when every normal of its subtree faces away (skip
 /// it); clears `cull` when every normal faces the ray (its subtree needs no more cone tests).
-inline bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
+POINTVIZ_HOT_INLINE bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
     if (cull && nd.has_cone()) {
         float c = dot(nd.axis(), ray.d), s = nd.cone();
         if (c > s) return false;      // every normal faces away
@@ -449,7 +458,7 @@ void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.
-inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
+POINTVIZ_HOT_INLINE void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
     if (ref & detail::kNodeFlag) {
         const Node &nd = tree.nodes()[ref & ~detail::kNodeFlag];
         n = normalize(nd.axis());
@@ -462,13 +471,10 @@ inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, 
     }
 }
 
-/// Closest hit with interpolation over the disks facing the same way as the nearest one,
-/// within the depth window (paper section 2.1).
-template <class Stats>
-bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
-    detail::Gather g(ray.tmax, opt.window);
-    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+/// The hit a closest-hit traversal's gathered disks make (`g`): the blend of closest_hit.
+POINTVIZ_HOT_INLINE bool finish_closest(const SurfelTree &tree, const TraceOptions &opt,
+                                       const detail::Gather &g,
+                           SurfaceHit &out) {
     out = SurfaceHit{};
     if (g.n == 0) return false;
     const detail::Candidate &best = g.c[0];
@@ -509,6 +515,16 @@ bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt
     out.index = (best.ref & detail::kNodeFlag) ? -2 : int32_t(best.ref);
     out.count = used;
     return true;
+}
+
+/// Closest hit with interpolation over the disks facing the same way as the nearest one,
+/// within the depth window (paper section 2.1).
+template <class Stats>
+bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
+    detail::Gather g(ray.tmax, opt.window);
+    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+    return finish_closest(tree, opt, g, out);
 }
 
 /// Any hit in [ray.tmin, ray.tmax]: shadow rays. Two-sided unless `cull` is asked for.

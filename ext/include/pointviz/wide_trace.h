@@ -200,7 +200,7 @@ inline void wide_box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const WideBoxNode
 /// Tests the ray against the six bounds of `w` within [ray.tmin, tfar], and their cones
 /// under culling (`cull`; away and toward stay 0 without).
 template <bool kSlabs>
-inline void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
+POINTVIZ_HOT_INLINE void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
     out.mask = out.away = out.toward = 0;
     for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
         if (g == 4 && !(out.mask & 2u)) break;  // B missed: its children do not count
@@ -243,22 +243,21 @@ inline void prefetch_entry(const SurfelTree &tree, uint32_t ref, uint32_t depth)
 
 }  // namespace detail
 
+namespace detail {
+
+/// The wide traversal's loop from a given state: the current entry `e` and the `sp` entries
+/// pending on `stack` (kStackSize entries). traverse_wide_impl starts it at the root; a ray
+/// that leaves a packet (packet_trace.h) continues in it from where the packet was. Always
+/// inlined: a call costs the single-ray traversal a few percent (its stack then lives behind a
+/// pointer).
 template <bool kSlabs, class Policy, class Stats>
-void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                        const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
-    using namespace detail;
-    const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
-    if (rs.t_root == kInf) return;
+POINTVIZ_HOT_INLINE void wide_loop(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                      const RaySetup &rs, Policy &policy, Stats &stats, StackEntry e,
+                      StackEntry *stack, int sp) {
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
     const bool lod = rs.lod;
     const LodGate &gate = rs.gate;
-
-    // A wide step leaves at most three entries behind per two levels (a binary step one per
-    // level): 48 for the deepest tree.
-    StackEntry stack[kStackSize];
-    int sp = 0;
-    StackEntry e{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u};
 
     for (;;) {
         bool descend = false;
@@ -382,6 +381,21 @@ void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptio
             e = stack[--sp];
         } while (e.t > policy.tfar());
     }
+}
+
+}  // namespace detail
+
+template <bool kSlabs, class Policy, class Stats>
+void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
+    using namespace detail;
+    const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
+    if (rs.t_root == kInf) return;
+    // A wide step leaves at most three entries behind per two levels (a binary step one per
+    // level): 48 for the deepest tree.
+    StackEntry stack[kStackSize];
+    wide_loop<kSlabs>(tree, ray, opt, rs, policy, stats,
+                      StackEntry{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u}, stack, 0);
 }
 
 POINTVIZ_ISA_END
