@@ -1,19 +1,21 @@
 // pointviz — packets of coherent rays traversing the wide tree together, for closest hits.
 //
 // Up to kPacket rays (camera rays of neighbouring pixels: one origin, directions within
-// kPacketMinCos of the first) walk the wide tree (wide.h) as one: a node is visited once for the
-// packet, its fields are loaded and decoded once (the quantised axes, cones and slabs) and its
-// lanes tested against every active ray with the single-ray lane tests (wide_trace.h), so each
-// ray gets the single-ray answer bit for bit; the children are sorted and pushed once, with the
-// mask of the rays that take them, their cone state and one entry parameter per ray. Each ray
-// keeps its own closest-hit policy (trace.h, Gather), so far entries are culled per ray on pop;
-// leaves run the leaf kernel once per active ray.
+// kPacketMinCos of the first) walk the wide tree (wide.h) as one, with the rays in the SIMD
+// lanes: a node is visited once for the packet, each of its six bounds is decoded once and
+// broadcast, and tested against all the packet's rays in one pass (eight rays per AVX2 register,
+// four per SSE register, one at a time without SIMD) with the single-ray tests' arithmetic
+// (wide_trace.h: box_lanes, sphere_slab_lanes), so each ray gets the single-ray answer bit for
+// bit. The children are then taken, sorted and pushed once, as masks of the rays that take them,
+// with one entry parameter per ray. Each ray keeps its own closest-hit policy (trace.h, Gather),
+// so far entries are culled per ray on pop; leaves run the leaf kernel once per active ray.
 //
 // Bit-identical to the single-ray traversal: a ray's gathered disks can depend on the order in
 // which they reach its policy (wide_trace.h), so a ray stays in the packet only while the
 // packet's order of children, restricted to the children it hits, is its own near-first order
 // (ties by the single traversal's order of creation). A ray whose order differs at some node
-// leaves the packet there and finishes alone in the single-ray loop (wide_trace.h, wide_loop),
+// leaves the packet there and finishes alone in the single-ray traversal (wide_trace.h,
+// traverse_wide_impl, started from the packet's state: PacketResume),
 // from its own stack: the packet's pending entries it takes, and that node's children in its
 // own order. Either way a ray sees exactly the single-ray sequence of nodes, leaves and
 // far-bound tests.
@@ -25,6 +27,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstring>
 
 #include "pointviz/isa.h"
 #include "pointviz/trace.h"
@@ -48,26 +51,43 @@ struct PacketEntry {
     uint16_t depth, flags;
     uint8_t active;       ///< rays that take the entry
     uint8_t cull;         ///< those of them whose subtree still needs cone tests
-    float t[kPacket];     ///< entry parameter per active ray
+    alignas(32) float t[kPacket];  ///< entry parameter per active ray
+};
+
+/// The packet's rays field by field, one lane per ray (lanes past the packet's rays repeat its
+/// first ray; their answers are masked off).
+struct PacketRays {
+    alignas(32) float ox[kPacket], oy[kPacket], oz[kPacket];
+    alignas(32) float dx[kPacket], dy[kPacket], dz[kPacket];
+    alignas(32) float ix[kPacket], iy[kPacket], iz[kPacket];  ///< inverse direction
+    alignas(32) float tmin[kPacket], tfar[kPacket];  ///< tfar: the ray's policy's far bound
+};
+
+/// What one wide node's six lanes tell the packet: per lane, the rays (bit r: ray r) that
+/// enter its bound, at t[lane][r]; those for which its cone faces away, and those for which it
+/// faces them (only for rays still culling; 0 otherwise).
+struct PacketHits {
+    uint32_t hit[kWideUsed], away[kWideUsed], toward[kWideUsed];
+    alignas(32) float t[kWideUsed][kPacket];
 };
 
 /// The entries one step creates, in the single traversal's order of creation (`slot`).
 struct PacketChildren {
     PacketEntry c[kWideUsed];
-    uint8_t lanes[kPacket];  ///< per ray: slots it takes
-    uint32_t used = 0;       ///< slots taken by any ray
+    uint32_t used = 0;  ///< slots taken by any ray
 
+    /// Ray r takes slot `slot` at entry parameter t (the packet's binary steps).
     void add(uint32_t slot, int r, float t, bool cull) {
         PacketEntry &x = c[slot];
         const uint8_t bit = uint8_t(1u << r);
         if (!((used >> slot) & 1u)) {
             used |= 1u << slot;
             x.active = x.cull = 0;
+            for (float &v : x.t) v = kInf;
         }
         x.active |= bit;
         if (cull) x.cull |= bit;
         x.t[r] = t;
-        lanes[r] |= uint8_t(1u << slot);
     }
 };
 
@@ -79,36 +99,37 @@ inline bool packet_before(const PacketChildren &ch, int r, uint32_t a, uint32_t 
 }
 
 /// The ray whose entry parameter stands for a slot's in the packet order: the slot's ray
-/// nearest the middle of the packet (rays in raster order diverge at both ends).
+/// nearest the middle of the packet.
 inline int packet_key_ray(uint32_t active) {
     const uint32_t upper = active & ~((1u << (kPacket / 2 - 1)) - 1u);
     return upper ? __builtin_ctz(upper) : 31 - __builtin_clz(active);
 }
 
-/// Sorts the used slots near first by the entry parameter of each slot's middle ray (a guess
-/// at the shared order) and adds to `leave` the rays of `act` whose own order differs. Writes
-/// the order to `order`; returns how many slots.
+/// Sorts the used slots near first by the entry parameter of each slot's key ray (a guess at
+/// the shared order) and adds to `leave` the rays of `act` whose own order differs. Writes the
+/// order to `order`; returns how many slots.
 inline int packet_order(const PacketChildren &ch, uint32_t act, uint32_t &leave, uint32_t *order) {
     int n = 0;
+    float key[kWideUsed];
     for (uint32_t m = ch.used; m != 0; m &= m - 1) {
         const uint32_t s = uint32_t(__builtin_ctz(m));
-        const int r = packet_key_ray(ch.c[s].active);
+        const float ts = ch.c[s].t[packet_key_ray(ch.c[s].active)];
         int k = n;
-        for (; k > 0; --k) {
-            const uint32_t p = order[k - 1];
-            const float tp = ch.c[p].t[packet_key_ray(ch.c[p].active)], ts = ch.c[s].t[r];
-            if (!(tp > ts)) break;
-            order[k] = p;
+        for (; k > 0 && key[k - 1] > ts; --k) {
+            order[k] = order[k - 1];
+            key[k] = key[k - 1];
         }
         order[k] = s;
+        key[k] = ts;
         ++n;
     }
+    if (n < 2) return n;
     for (uint32_t m = act; m != 0; m &= m - 1) {
         const int r = __builtin_ctz(m);
         int prev = -1;
         for (int i = 0; i < n; ++i) {
             const uint32_t s = order[i];
-            if (!((ch.lanes[r] >> s) & 1u)) continue;
+            if (!((ch.c[s].active >> r) & 1u)) continue;
             if (prev >= 0 && !packet_before(ch, r, uint32_t(prev), s)) {
                 leave |= 1u << r;
                 break;
@@ -119,78 +140,118 @@ inline int packet_order(const PacketChildren &ch, uint32_t act, uint32_t &leave,
     return n;
 }
 
-/// Clears the lane masks of the rays in `act`.
-inline void clear_hits(uint32_t act, WideHits *wh) {
-    for (uint32_t m = act; m != 0; m &= m - 1) {
-        WideHits &o = wh[__builtin_ctz(m)];
-        o.mask = o.away = o.toward = 0;
+/// Three lanes V: a vector field of the packet's rays.
+template <class V>
+struct Lanes3 {
+    V x, y, z;
+};
+
+/// Some of the packet's rays, one per lane, as the lane tests of wide_trace.h read a Ray.
+template <class V>
+struct PacketLanes {
+    Lanes3<V> o, d;
+    V tmin;
+};
+
+/// The rays [q, q + width of V) of `pr`.
+inline PacketLanes<WideV> packet_lanes(const PacketRays &pr, uint32_t q) {
+    return {{lanes_f32(pr.ox + q), lanes_f32(pr.oy + q), lanes_f32(pr.oz + q)},
+            {lanes_f32(pr.dx + q), lanes_f32(pr.dy + q), lanes_f32(pr.dz + q)},
+            lanes_f32(pr.tmin + q)};
+}
+
+/// Reports one lane's test over the packet's rays: entered, entry parameter, cones.
+template <class V, class M>
+inline void report_rays(M ok, V t, V cosv, float s, bool cull, uint32_t q, uint32_t lane,
+                        PacketHits &out) {
+    out.hit[lane] |= movemask(ok) << q;
+    store_lanes(t, out.t[lane] + q);
+    if (cull) {
+        out.away[lane] |= movemask(cosv > V(s)) << q;
+        out.toward[lane] |= movemask(cosv < V(0.f) - V(s)) << q;
     }
 }
 
-/// Tests the active rays against the six spheres (and slabs) of `w`: the fields decoded once,
-/// then each ray through sphere_slab_lanes (the single-ray test), its cones under culling.
+/// The cone's sine of one lane, decoded as cone_lanes does.
+inline float cone_sine(uint16_t q) {
+    return float(q) >= float(kConeNeverQ) ? 2.f : float(q) * (1.f / kConeScale);
+}
+
+/// Lane `lane` of sphere node `w` (its fields decoded as wide_lanes decodes them) against the
+/// packet's rays, its cone under culling.
 template <bool kSlabs>
-inline void packet_enter_wide(const WideNode &w, const Ray *rays, const Gather *pol,
-                              uint32_t act, uint32_t cullm, WideHits *wh) {
+inline void packet_sphere_lane(const WideNode &w, uint32_t lane, const PacketRays &pr, bool cull,
+                               PacketHits &out) {
     using V = WideV;
-    clear_hits(act, wh);
-    for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
-        const V cx = lanes_f32(w.cx + g), cy = lanes_f32(w.cy + g), cz = lanes_f32(w.cz + g);
-        const V r = lanes_f32(w.r + g);
-        const V ka(1.f / kAxisScale);
-        const V ax = lanes_i16(w.ax + g) * ka, ay = lanes_i16(w.ay + g) * ka,
-                az = lanes_i16(w.az + g) * ka;
-        const V qslab = lanes_u8(w.slab_q + g);
-        const V h = select(qslab >= V(float(kNoSlab)), V(kInf), qslab * V(1.f / 255.f) * r);
-        const V s = cullm ? cone_lanes(lanes_u16(w.cone_q + g)) : V(0.f);
-        for (uint32_t m = act; m != 0; m &= m - 1) {
-            const int k = __builtin_ctz(m);
-            WideHits &o = wh[k];
-            if (g >= 4 && !(o.mask & 2u)) continue;  // B missed: its children do not count
-            V t, cosv;
-            const auto ok = sphere_slab_lanes<kSlabs>(cx, cy, cz, r, ax, ay, az, h, rays[k],
-                                                      pol[k].tfar(), t, cosv);
-            report_hits(ok, t, g, o);
-            if ((cullm >> k) & 1u) report_cones(cosv, s, g, o);
+    const float ka = 1.f / kAxisScale;
+    const float r = w.r[lane];
+    const float qslab = float(w.slab_q[lane]);
+    const V cx(w.cx[lane]), cy(w.cy[lane]), cz(w.cz[lane]), rv(r);
+    const V ax(float(w.ax[lane]) * ka), ay(float(w.ay[lane]) * ka), az(float(w.az[lane]) * ka);
+    const V h(qslab >= float(kNoSlab) ? kInf : qslab * (1.f / 255.f) * r);
+    const float s = cull ? cone_sine(w.cone_q[lane]) : 0.f;
+    out.hit[lane] = out.away[lane] = out.toward[lane] = 0;
+    for (uint32_t q = 0; q < uint32_t(kPacket); q += kWideStep) {
+        V t, cosv;
+        const auto ok = sphere_slab_lanes<kSlabs>(cx, cy, cz, rv, ax, ay, az, h, packet_lanes(pr, q),
+                                                  lanes_f32(pr.tfar + q), t, cosv);
+        report_rays(ok, t, cosv, s, cull, q, lane, out);
+    }
+}
+
+/// Lane `lane` of box node `w` against the packet's rays, its cone under culling.
+inline void packet_box_lane(const WideBoxNode &w, uint32_t lane, const PacketRays &pr, bool cull,
+                            PacketHits &out) {
+    using V = WideV;
+    const float ka = 1.f / kAxisScale;
+    const V lx(w.lx[lane]), ly(w.ly[lane]), lz(w.lz[lane]);
+    const V hx(w.hx[lane]), hy(w.hy[lane]), hz(w.hz[lane]);
+    const V ax(float(w.ax[lane]) * ka), ay(float(w.ay[lane]) * ka), az(float(w.az[lane]) * ka);
+    const float s = cull ? cone_sine(w.cone_q[lane]) : 0.f;
+    out.hit[lane] = out.away[lane] = out.toward[lane] = 0;
+    for (uint32_t q = 0; q < uint32_t(kPacket); q += kWideStep) {
+        V t;
+        const PacketLanes<V> rays = packet_lanes(pr, q);
+        const Lanes3<V> inv_d{lanes_f32(pr.ix + q), lanes_f32(pr.iy + q), lanes_f32(pr.iz + q)};
+        const auto ok = box_lanes(lx, ly, lz, hx, hy, hz, rays, inv_d, lanes_f32(pr.tfar + q), t);
+        // wide_box_lanes' cone cosine: the decoded axis times the direction
+        const V cosv = cull ? ax * rays.d.x + ay * rays.d.y + az * rays.d.z : V(0.f);
+        report_rays(ok, t, cosv, s, cull, q, lane, out);
+    }
+}
+
+/// Tests the packet's rays `act` against the bounds of one wide node (`test(lane)`): A and B,
+/// then the children of those of A and B that are interior and entered by some ray.
+template <class Test>
+inline void packet_node(const uint32_t *refs, uint32_t act, PacketHits &out, Test test) {
+    for (uint32_t j = 0; j < 2; ++j) {
+        test(j);
+        const bool inner = !(refs[j] >> 27);
+        for (uint32_t k = 0; k < 2; ++k) {
+            const uint32_t lane = 2 + 2 * j + k;
+            if (inner && (out.hit[j] & act)) test(lane);
+            else out.hit[lane] = 0;
         }
     }
 }
 
-/// The same for the six boxes of `w`.
-inline void packet_enter_wide_box(const WideBoxNode &w, const Ray *rays, const Vec3 *inv_d,
-                                  const Gather *pol, uint32_t act, uint32_t cullm, WideHits *wh) {
-    using V = WideV;
-    clear_hits(act, wh);
-    for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
-        const V lx = lanes_f32(w.lx + g), ly = lanes_f32(w.ly + g), lz = lanes_f32(w.lz + g);
-        const V hx = lanes_f32(w.hx + g), hy = lanes_f32(w.hy + g), hz = lanes_f32(w.hz + g);
-        const V ka(1.f / kAxisScale);
-        V ax(0.f), ay(0.f), az(0.f), s(0.f);
-        if (cullm) {
-            ax = lanes_i16(w.ax + g) * ka;
-            ay = lanes_i16(w.ay + g) * ka;
-            az = lanes_i16(w.az + g) * ka;
-            s = cone_lanes(lanes_u16(w.cone_q + g));
-        }
-        for (uint32_t m = act; m != 0; m &= m - 1) {
-            const int k = __builtin_ctz(m);
-            WideHits &o = wh[k];
-            if (g >= 4 && !(o.mask & 2u)) continue;
-            const Ray &ray = rays[k];
-            V t;
-            const auto ok = box_lanes(lx, ly, lz, hx, hy, hz, ray, inv_d[k], pol[k].tfar(), t);
-            report_hits(ok, t, g, o);
-            if ((cullm >> k) & 1u) {
-                const V cosv = ax * V(ray.d.x) + ay * V(ray.d.y) + az * V(ray.d.z);
-                report_cones(cosv, s, g, o);
-            }
-        }
+/// The state a ray that leaves a packet resumes from in the single-ray traversal
+/// (traverse_wide_impl's `start`): its current entry and its pending entries, bottom first.
+struct PacketResume {
+    static constexpr bool kFromRoot = false;
+    const StackEntry *pending;
+    int n;
+    StackEntry next;
+    void operator()(StackEntry &e, StackEntry *stack, int &sp) const {
+        for (int i = 0; i < n; ++i) stack[i] = pending[i];
+        sp = n;
+        e = next;
     }
-}
+};
 
 /// Ray r leaves the packet at a step whose children (`ch`) it would order otherwise: its own
 /// stack is the packet's entries it takes (`sp` on `pstack`, bottom first) and its children in
-/// its own order, from which the single-ray loop (wide_loop) finishes it.
+/// its own order, from which the single-ray traversal finishes it.
 template <bool kSlabs>
 inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
                          const LodGates &gates, Gather &pol, int r, const PacketEntry *pstack,
@@ -206,17 +267,18 @@ inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOpti
         if (pstack[i].active & bit) stack[n++] = entry(pstack[i]);
     uint32_t order[kWideUsed];
     int k = 0;
-    for (uint32_t m = ch.lanes[r]; m != 0; m &= m - 1) {
+    for (uint32_t m = ch.used; m != 0; m &= m - 1) {
         const uint32_t s = uint32_t(__builtin_ctz(m));
+        if (!(ch.c[s].active & bit)) continue;
         int j = k;
         for (; j > 0 && !packet_before(ch, r, order[j - 1], s); --j) order[j] = order[j - 1];
         order[j] = s;
         ++k;
     }
     for (int i = k - 1; i > 0; --i) stack[n++] = entry(ch.c[order[i]]);
-    const RaySetup rs(tree, ray, opt, gates, pol, std::integral_constant<bool, kSlabs>());
     NoStats ns;
-    wide_loop<kSlabs>(tree, ray, opt, rs, pol, ns, entry(ch.c[order[0]]), stack, n);
+    traverse_wide_impl<kSlabs>(tree, ray, opt, gates, opt.cull, pol, ns,
+                               PacketResume{stack, n, entry(ch.c[order[0]])});
 }
 
 }  // namespace detail
@@ -236,6 +298,7 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         {n > 2 ? rays[2].tmax : 0.f, opt.window}, {n > 3 ? rays[3].tmax : 0.f, opt.window},
         {n > 4 ? rays[4].tmax : 0.f, opt.window}, {n > 5 ? rays[5].tmax : 0.f, opt.window},
         {n > 6 ? rays[6].tmax : 0.f, opt.window}, {n > 7 ? rays[7].tmax : 0.f, opt.window}};
+    PacketRays pr;
     Vec3 inv_d[kPacket];
     PacketEntry e;
     e.node = 0;
@@ -243,9 +306,16 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
     e.depth = 0;
     e.flags = 0;
     e.active = 0;
-    for (int r = 0; r < n; ++r) {
-        const Ray &ray = rays[r];
+    for (int r = 0; r < kPacket; ++r) {
+        const Ray &ray = rays[r < n ? r : 0];
         inv_d[r] = {1.f / ray.d.x, 1.f / ray.d.y, 1.f / ray.d.z};
+        pr.ox[r] = ray.o.x, pr.oy[r] = ray.o.y, pr.oz[r] = ray.o.z;
+        pr.dx[r] = ray.d.x, pr.dy[r] = ray.d.y, pr.dz[r] = ray.d.z;
+        pr.ix[r] = inv_d[r].x, pr.iy[r] = inv_d[r].y, pr.iz[r] = inv_d[r].z;
+        pr.tmin[r] = ray.tmin;
+        pr.tfar[r] = pol[r < n ? r : 0].tfar();
+        e.t[r] = kInf;
+        if (r >= n) continue;
         e.t[r] = enter_bound<kSlabs>(tree, 0, 0, ray, inv_d[r], pol[r].tfar(), opt.box_depth);
         if (e.t[r] != kInf) e.active |= uint8_t(1u << r);
     }
@@ -260,13 +330,13 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         uint32_t act = e.active, cullm = e.cull;
         uint32_t wi = kNoWide;
         PacketChildren ch;
-        for (int r = 0; r < kPacket; ++r) ch.lanes[r] = 0;
         if (e.flags & kVisited) {
             if (e.ref >> 27) {
                 for (uint32_t m = act; m != 0; m &= m - 1) {
                     const int r = __builtin_ctz(m);
                     visit_leaf(tree, e.ref & (kMaxTreeSurfels - 1), e.ref >> 27, rays[r],
                                ((cullm >> r) & 1u) != 0, pol[r], ns);
+                    pr.tfar[r] = pol[r].tfar();
                 }
             } else {
                 wi = e.ref;
@@ -287,6 +357,7 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
                     const int r = __builtin_ctz(m);
                     visit_leaf(tree, nd.index(), nd.count(), rays[r], ((cullm >> r) & 1u) != 0,
                                pol[r], ns);
+                    pr.tfar[r] = pol[r].tfar();
                 }
             } else if (wide.has(e.node)) {
                 wi = wide.index_of(e.node);
@@ -311,53 +382,51 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
             }
         }
         if (wi != kNoWide) {
-            WideHits wh[kPacket];
+            alignas(32) PacketHits ph;
             const uint32_t *refs;
+            const bool cull = cullm != 0;
             if (wide.box_level(e.depth)) {
                 const WideBoxNode &w = wide.box_node(wi);
-                packet_enter_wide_box(w, rays, inv_d, pol, act, cullm, wh);
                 refs = w.ref;
+                packet_node(refs, act, ph, [&](uint32_t lane) { packet_box_lane(w, lane, pr, cull, ph); });
             } else {
                 const WideNode &w = wide.node(wi);
-                packet_enter_wide<kSlabs>(w, rays, pol, act, cullm, wh);
                 refs = w.ref;
+                packet_node(refs, act, ph, [&](uint32_t lane) {
+                    packet_sphere_lane<kSlabs>(w, lane, pr, cull, ph);
+                });
             }
-            // Each ray's entries as the single traversal makes them; slots in its order of
-            // creation: A (leaf), A1, A2, B (leaf), B1, B2.
+            // Each ray's entries as the single traversal makes them, as masks of rays; slots
+            // in its order of creation: A (leaf), A1, A2, B (leaf), B1, B2.
             static constexpr uint32_t kSlotOfLane[kWideUsed] = {0, 3, 1, 2, 4, 5};
-            static constexpr uint32_t kLaneOfSlot[kWideUsed] = {0, 2, 3, 1, 4, 5};
-            for (uint32_t m = act; m != 0; m &= m - 1) {
-                const int r = __builtin_ctz(m);
-                const WideHits &h = wh[r];
-                const bool rc = ((cullm >> r) & 1u) != 0;
-                for (uint32_t j = 0; j < 2; ++j) {
-                    if (!((h.mask >> j) & 1u)) continue;
-                    bool xc = rc;
-                    if (xc && ((h.away >> j) & 1u)) continue;
-                    if (xc && ((h.toward >> j) & 1u)) xc = false;
-                    if (refs[j] >> 27) {
-                        ch.add(kSlotOfLane[j], r, h.t[j], xc);
-                        continue;
-                    }
-                    for (uint32_t k = 0; k < 2; ++k) {
-                        const uint32_t lane = 2 + 2 * j + k;
-                        if (!((h.mask >> lane) & 1u)) continue;
-                        bool yc = xc;
-                        if (yc && ((h.away >> lane) & 1u)) continue;
-                        if (yc && ((h.toward >> lane) & 1u)) yc = false;
-                        ch.add(kSlotOfLane[lane], r, h.t[lane], yc);
-                    }
-                }
-            }
-            for (uint32_t m = ch.used; m != 0; m &= m - 1) {
-                const uint32_t s = uint32_t(__builtin_ctz(m));
-                const uint32_t lane = kLaneOfSlot[s];
+            auto take = [&](uint32_t lane, uint32_t in, uint32_t cin) {
+                if (!in) return;
+                const uint32_t s = kSlotOfLane[lane];
                 PacketEntry &x = ch.c[s];
                 x.node = 0;
                 x.ref = refs[lane];
                 x.depth = uint16_t(e.depth + 1 + (lane >= 2));
                 x.flags = kVisited;
+                x.active = uint8_t(in);
+                x.cull = uint8_t(cin);
+                std::memcpy(x.t, ph.t[lane], sizeof x.t);
+                ch.used |= 1u << s;
                 prefetch_entry(tree, x.ref, x.depth);
+            };
+            for (uint32_t j = 0; j < 2; ++j) {
+                // A or B: entered and not turned away by its cone; still culling below where
+                // its cone does not face every ray.
+                const uint32_t in = ph.hit[j] & act & ~(cullm & ph.away[j]);
+                const uint32_t xc = in & cullm & ~ph.toward[j];
+                if (refs[j] >> 27) {
+                    take(j, in, xc);
+                    continue;
+                }
+                for (uint32_t k = 0; k < 2; ++k) {
+                    const uint32_t lane = 2 + 2 * j + k;
+                    const uint32_t gin = ph.hit[lane] & in & ~(xc & ph.away[lane]);
+                    take(lane, gin, gin & xc & ~ph.toward[lane]);
+                }
             }
         }
         have = false;
@@ -384,11 +453,10 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         // Pop the nearest pending entry that can still hold a closer hit for some ray.
         while (sp > 0) {
             e = stack[--sp];
-            uint32_t a = e.active & alive;
-            for (uint32_t m = a; m != 0; m &= m - 1) {
-                const int r = __builtin_ctz(m);
-                if (e.t[r] > pol[r].tfar()) a &= ~(1u << r);
-            }
+            uint32_t far = 0;
+            for (uint32_t q = 0; q < uint32_t(kPacket); q += kWideStep)
+                far |= movemask(lanes_f32(e.t + q) > lanes_f32(pr.tfar + q)) << q;
+            const uint32_t a = e.active & alive & ~far;
             if (a) {
                 e.active = uint8_t(a);
                 e.cull &= e.active;

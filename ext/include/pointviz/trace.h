@@ -15,9 +15,9 @@
 #include "pointviz/lod.h"
 #include "pointviz/tree.h"
 
-/// Inlined whatever the compiler's inlining budget says: the traversal's hot steps. Translation
-/// units that instantiate several traversals (cast.cpp: single rays and packets) otherwise run
-/// past the budget and leave some of them out of line, a few percent per ray.
+/// Inlined whatever the compiler's inlining budget says: steps factored out of the single-ray
+/// traversal so that the packet traversal (packet_trace.h) can share them; always inlined, the
+/// single-ray traversal compiles as it did with them written in place.
 #define POINTVIZ_HOT_INLINE __attribute__((always_inline)) inline
 
 namespace pointviz {
@@ -288,7 +288,7 @@ inline bool binary_step(const SurfelTree &tree, const Node &nd, const Ray &ray, 
 
 /// A node's cone test under culling: false when every normal of its subtree faces away (skip
 /// it); clears `cull` when every normal faces the ray (its subtree needs no more cone tests).
-POINTVIZ_HOT_INLINE bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
+inline bool cone_admits(const Node &nd, const Ray &ray, bool &cull) {
     if (cull && nd.has_cone()) {
         float c = dot(nd.axis(), ray.d), s = nd.cone();
         if (c > s) return false;      // every normal faces away
@@ -428,12 +428,21 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     }
 }
 
+/// Where a wide traversal starts: at the root, with an empty stack (a ray that misses the
+/// root's bound ends at once).
+struct WideRoot {
+    static constexpr bool kFromRoot = true;
+    void operator()(detail::StackEntry &, detail::StackEntry *, int &) const {}
+};
+
 /// The wide traversal (wide_trace.h, which defines it): the same decisions as traverse_impl,
 /// with the bounds of two levels tested at once. Callers that instantiate the queries below
-/// include wide_trace.h.
-template <bool kSlabs, class Policy, class Stats>
+/// include wide_trace.h. `start` may replace the root entry and the empty stack before the
+/// loop runs: a ray that leaves a packet (packet_trace.h) continues from where the packet was.
+template <bool kSlabs, class Policy, class Stats, class Start = WideRoot>
 void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                        const LodGates &gates, bool cull, Policy &policy, Stats &stats);
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats,
+                        Start start = {});
 
 /// Whether the wide traversal serves `opt` on `tree`: asked for, and the tree's wide nodes
 /// were built for the box depth the options use (a different one, e.g. boxes on every level,
@@ -458,7 +467,7 @@ void traverse(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
 }
 
 /// Attributes of a gathered disk: surfel or LoD node.
-POINTVIZ_HOT_INLINE void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
+inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, Vec3 &color) {
     if (ref & detail::kNodeFlag) {
         const Node &nd = tree.nodes()[ref & ~detail::kNodeFlag];
         n = normalize(nd.axis());

@@ -91,10 +91,10 @@ inline V smax(V a, V b) { return vmax(b, a); }
 
 /// Box of each lane V: the operations of enter_box in the same order, so that every lane gives
 /// the scalar test's answer bit for bit. Returns the lanes entered within [ray.tmin, tfar];
-/// writes their entry parameter to `t` (kInf elsewhere).
-template <class V>
-inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const Ray &ray, Vec3 inv_d, float tfar,
-                      V &t) {
+/// writes their entry parameter to `t` (kInf elsewhere). The ray is a Ray (one ray against the
+/// lanes' boxes) or a PacketLanes (packet_trace.h: one box, broadcast, against a ray per lane).
+template <class V, class R = Ray, class I = Vec3, class T = float>
+inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const R &ray, I inv_d, T tfar, V &t) {
     const V ox(ray.o.x), oy(ray.o.y), oz(ray.o.z);
     const V ix(inv_d.x), iy(inv_d.y), iz(inv_d.z);
     const V t0x = (lx - ox) * ix, t1x = (hx - ox) * ix;
@@ -111,10 +111,10 @@ inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const Ray &ray, Vec3 i
 /// (kSlabs) or enter_sphere in the same order, so that every lane gives the scalar test's answer
 /// bit for bit. A slab half-width of +inf leaves t0 and t1 as they are (no slab). Returns the
 /// lanes entered; writes their entry parameter to `t` (kInf elsewhere) and the cosine of their
-/// cone axis with the ray to `cosv`.
-template <bool kSlabs, class V>
-inline auto sphere_slab_lanes(V cx, V cy, V cz, V r, V ax, V ay, V az, V h, const Ray &ray,
-                              float tfar, V &t, V &cosv) {
+/// cone axis with the ray to `cosv`. The ray is a Ray or a PacketLanes, as for box_lanes.
+template <bool kSlabs, class V, class R = Ray, class T = float>
+inline auto sphere_slab_lanes(V cx, V cy, V cz, V r, V ax, V ay, V az, V h, const R &ray, T tfar,
+                              V &t, V &cosv) {
     const V ox(ray.o.x), oy(ray.o.y), oz(ray.o.z);
     const V dx(ray.d.x), dy(ray.d.y), dz(ray.d.z);
     // cone_admits' dot(axis, d), which is also the slab's dot(d, axis) bit for bit
@@ -200,7 +200,7 @@ inline void wide_box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const WideBoxNode
 /// Tests the ray against the six bounds of `w` within [ray.tmin, tfar], and their cones
 /// under culling (`cull`; away and toward stay 0 without).
 template <bool kSlabs>
-POINTVIZ_HOT_INLINE void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
+inline void enter_wide(const WideNode &w, const Ray &ray, float tfar, bool cull, WideHits &out) {
     out.mask = out.away = out.toward = 0;
     for (uint32_t g = 0; g < uint32_t(kWideUsed); g += kWideStep) {
         if (g == 4 && !(out.mask & 2u)) break;  // B missed: its children do not count
@@ -243,21 +243,24 @@ inline void prefetch_entry(const SurfelTree &tree, uint32_t ref, uint32_t depth)
 
 }  // namespace detail
 
-namespace detail {
-
-/// The wide traversal's loop from a given state: the current entry `e` and the `sp` entries
-/// pending on `stack` (kStackSize entries). traverse_wide_impl starts it at the root; a ray
-/// that leaves a packet (packet_trace.h) continues in it from where the packet was. Always
-/// inlined: a call costs the single-ray traversal a few percent (its stack then lives behind a
-/// pointer).
-template <bool kSlabs, class Policy, class Stats>
-POINTVIZ_HOT_INLINE void wide_loop(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                      const RaySetup &rs, Policy &policy, Stats &stats, StackEntry e,
-                      StackEntry *stack, int sp) {
+template <bool kSlabs, class Policy, class Stats, class Start>
+void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats,
+                        Start start) {
+    using namespace detail;
+    const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
+    if (Start::kFromRoot && rs.t_root == kInf) return;
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
     const bool lod = rs.lod;
     const LodGate &gate = rs.gate;
+
+    // A wide step leaves at most three entries behind per two levels (a binary step one per
+    // level): 48 for the deepest tree.
+    StackEntry stack[kStackSize];
+    int sp = 0;
+    StackEntry e{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u};
+    start(e, stack, sp);
 
     for (;;) {
         bool descend = false;
@@ -381,21 +384,6 @@ POINTVIZ_HOT_INLINE void wide_loop(const SurfelTree &tree, const Ray &ray, const
             e = stack[--sp];
         } while (e.t > policy.tfar());
     }
-}
-
-}  // namespace detail
-
-template <bool kSlabs, class Policy, class Stats>
-void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                        const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
-    using namespace detail;
-    const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
-    if (rs.t_root == kInf) return;
-    // A wide step leaves at most three entries behind per two levels (a binary step one per
-    // level): 48 for the deepest tree.
-    StackEntry stack[kStackSize];
-    wide_loop<kSlabs>(tree, ray, opt, rs, policy, stats,
-                      StackEntry{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u}, stack, 0);
 }
 
 POINTVIZ_ISA_END
