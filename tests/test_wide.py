@@ -140,9 +140,15 @@ def test_packets_equal_single_rays_on_camera_grids(shape):
         for eye, target, fov in views:
             cam = Camera.look_at(eye, target, fov_deg=fov, width=96, height=64)
             rays = cam.rays()
-            p, s = _packets_and_single(scene, rays)
-            for k in s:
-                np.testing.assert_array_equal(p[k], s[k], err_msg=f"{variant} {eye} {k}")
+            # rows in raster order (blocks of 2x4 pixels), float64 rays, one row alone (groups of
+            # eight consecutive rays), rows of eight, a width not a multiple of 4
+            odd = Camera.look_at(eye, target, fov_deg=fov, width=37, height=23).rays()
+            for name, r in (("raster", rays), ("float64", rays.astype(np.float64)),
+                            ("row", rays[:96]), ("narrow", rays.reshape(64, 96, 6)[:, :8].reshape(-1, 6)),
+                            ("odd", odd)):
+                p, s = _packets_and_single(scene, r)
+                for k in s:
+                    np.testing.assert_array_equal(p[k], s[k], err_msg=f"{variant} {eye} {name} {k}")
             hits.append(np.isfinite(s["t_hit"]).mean())
         assert 0.05 < hits[0] < 0.95 and max(hits[1:]) > 0.05, hits
 

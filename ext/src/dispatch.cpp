@@ -97,14 +97,18 @@ bool by_packets(const SurfelTree &tree, const TraceOptions &opt, bool count) {
 void cast_with(const QueryKernels &k, const SurfelTree &tree, const float *rays, size_t n,
                const TraceOptions &opt, float pixel_angle, int threads, CastOutput out,
                bool count, BatchStats &stats) {
-    (by_packets(tree, opt, count) ? k.cast_packets_f32 : k.cast_f32)(
-        tree, rays, n, opt, pixel_angle, threads, out, count, stats);
+    if (by_packets(tree, opt, count) &&
+        k.cast_packets_f32(tree, rays, n, opt, pixel_angle, threads, out, count, stats))
+        return;
+    k.cast_f32(tree, rays, n, opt, pixel_angle, threads, out, count, stats);
 }
 void cast_with(const QueryKernels &k, const SurfelTree &tree, const double *rays, size_t n,
                const TraceOptions &opt, float pixel_angle, int threads, CastOutput out,
                bool count, BatchStats &stats) {
-    (by_packets(tree, opt, count) ? k.cast_packets_f64 : k.cast_f64)(
-        tree, rays, n, opt, pixel_angle, threads, out, count, stats);
+    if (by_packets(tree, opt, count) &&
+        k.cast_packets_f64(tree, rays, n, opt, pixel_angle, threads, out, count, stats))
+        return;
+    k.cast_f64(tree, rays, n, opt, pixel_angle, threads, out, count, stats);
 }
 void occluded_with(const QueryKernels &k, const SurfelTree &tree, const float *rays,
                    const float *t_max, size_t n, const TraceOptions &opt, float t_min,

@@ -8,10 +8,12 @@
 //   traversal gives the binary one's any hits exactly, the same nearest disk on every ray, and
 //   the same blended hit on all but a few rays (the order in which disks reach the closest-hit
 //   policy may differ, wide_trace.h); statistics agree to within a few percent.
-// * packets (packet_trace.h): closest hits of coherent groups traversed together equal those
-//   of one ray at a time bit for bit (t, normal, colour, radius, surfel, count) on primary
-//   grids with holes and silhouettes, rays from inside, axis-aligned (degenerate) directions,
-//   with culling, slabs, boxes and interpolation on and off, for every instruction set.
+// * packets (packet_trace.h, packet_cast.h): closest hits of coherent groups traversed together
+//   (8x1 and 2x4 pixels, rays in the SIMD lanes) equal those of one ray at a time bit for bit
+//   (t, normal, colour, radius, surfel, count) on primary grids with holes and silhouettes, rays
+//   from inside, axis-aligned (degenerate) directions, with culling, slabs, boxes and
+//   interpolation on and off, for every instruction set (through cast_rays: 2x4 blocks of the
+//   grid's rows) and the portable kernels directly.
 // The brute-force checks of core_tests run the default traversal, which is the wide one.
 //
 // Random cases are seeded by their index; a failure prints the case to replay.
@@ -387,7 +389,8 @@ void test_packets_equal_single_rays() {
     // at the rim (silhouettes)
     const double eyes[4][3] = {{3.1, -2.2, 1.3}, {0.0, 0.0, 4.0}, {0.05, -0.1, 0.02}, {0.0, 0.0, 4.0}};
     const double ats[4][3] = {{0.1, 0.2, -0.1}, {0.0, 0.0, 0.0}, {1.0, 0.3, 0.2}, {0.99, 0.0, 0.0}};
-    size_t kept = 0, total = 0;
+    size_t kept = 0, total = 0, kept_block = 0, total_block = 0;
+    constexpr size_t kGridW = 37, kGridH = 23;
     for (int si = 0; si < 3; ++si)
         for (uint32_t leaf : {4u, 8u})
             for (uint32_t box_depth : {0u, 3u, 4u}) {
@@ -397,7 +400,7 @@ void test_packets_equal_single_rays() {
                     // a tight grid (coherent: packets) and a wide one (silhouettes, holes,
                     // groups beyond kPacketMinCos: one ray at a time)
                     for (double fov : {0.06, 0.25, 1.4}) {
-                        const std::vector<double> rays = grid_rays(eyes[ei], ats[ei], 37, 23, fov);
+                        const std::vector<double> rays = grid_rays(eyes[ei], ats[ei], int(kGridW), int(kGridH), fov);
                         for (int variant = 0; variant < 4; ++variant) {
                             TraceOptions o;
                             o.box_depth = box_depth;
@@ -422,25 +425,28 @@ void test_packets_equal_single_rays() {
                                       "packets differ from single rays", si, leaf, box_depth, ei,
                                       fov, variant, isa_name(isa));
                             }
-                            // The portable kernels directly: the packet path ran, and most
-                            // rays of the tight grid stayed in their packet.
+                            // The portable kernels directly, on groups of eight in a row and
+                            // on blocks of 2x4 pixels (what cast_rays makes of rows of rays in
+                            // raster order): the packet path ran, and most rays of the tight
+                            // grid stayed in their packet.
                             o.isa = Isa::Base;
                             const LodGates gates = lod_gates(o);
-                            for (size_t g = 0; g + kPacket <= rays.size() / 6; g += kPacket) {
+                            auto check_group = [&](const size_t *idx, uint32_t centre, size_t &kept_n,
+                                                   size_t &total_n) {
                                 Ray r[kPacket];
                                 for (int k = 0; k < kPacket; ++k) {
-                                    const double *x = &rays[6 * (g + size_t(k))];
+                                    const double *x = &rays[6 * idx[k]];
                                     const double l = std::sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5]);
                                     r[k].o = {float(x[0]), float(x[1]), float(x[2])};
                                     r[k].d = {float(x[3] / l), float(x[4] / l), float(x[5] / l)};
                                 }
-                                if (!packet_covers(tree, r, kPacket, o)) continue;
+                                if (!packet_covers(tree, r, kPacket, o)) return;
                                 SurfaceHit h[kPacket];
                                 const uint32_t stayed =
-                                    o.slabs ? closest_hits_packet_impl<true>(tree, r, kPacket, o, gates, h)
-                                            : closest_hits_packet_impl<false>(tree, r, kPacket, o, gates, h);
-                                kept += size_t(__builtin_popcount(stayed));
-                                total += kPacket;
+                                    o.slabs ? closest_hits_packet_impl<true>(tree, r, kPacket, o, gates, h, centre)
+                                            : closest_hits_packet_impl<false>(tree, r, kPacket, o, gates, h, centre);
+                                kept_n += size_t(__builtin_popcount(stayed));
+                                total_n += kPacket;
                                 for (int k = 0; k < kPacket; ++k) {
                                     SurfaceHit one;
                                     NoStats ns;
@@ -449,15 +455,29 @@ void test_packets_equal_single_rays() {
                                               same_bits(one.n.x, h[k].n.x) && same_bits(one.color.y, h[k].color.y) &&
                                               one.count == h[k].count,
                                           "shape %d leaf %u eye %d variant %d ray %zu: packet differs",
-                                          si, leaf, ei, variant, g + size_t(k));
+                                          si, leaf, ei, variant, idx[k]);
                                 }
+                            };
+                            size_t idx[kPacket];
+                            for (size_t g = 0; g + kPacket <= rays.size() / 6; g += kPacket) {
+                                for (int k = 0; k < kPacket; ++k) idx[k] = g + size_t(k);
+                                check_group(idx, kRowCentre, kept, total);
                             }
+                            for (size_t j = 0; j + 1 < kGridH; j += 2)
+                                for (size_t i = 0; i + 4 <= kGridW; i += 4) {
+                                    for (int k = 0; k < kPacket; ++k)
+                                        idx[k] = (j + size_t(k / 4)) * kGridW + i + size_t(k % 4);
+                                    check_group(idx, kBlockCentre, kept_block, total_block);
+                                }
                         }
                     }
                 }
             }
     CHECK(total > 0 && kept * 2 > total, "packets ran: %zu of %zu rays stayed in theirs", kept, total);
-    std::printf("wide_tests: %zu of %zu packet rays stayed in their packet\n", kept, total);
+    CHECK(total_block > 0 && kept_block * 2 > total_block,
+          "2x4 packets ran: %zu of %zu rays stayed in theirs", kept_block, total_block);
+    std::printf("wide_tests: %zu of %zu rays stayed in their packet of 8x1, %zu of %zu of 2x4\n",
+                kept, total, kept_block, total_block);
 }
 
 }  // namespace

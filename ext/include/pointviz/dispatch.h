@@ -25,10 +25,10 @@ struct QueryKernels {
     void (*occluded_f64)(const SurfelTree &, const double *, const float *, size_t,
                          const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
     /// cast_f32 / cast_f64 without statistics, coherent groups of rays as packets
-    /// (packet_cast.h; the wide traversal only).
-    void (*cast_packets_f32)(const SurfelTree &, const float *, size_t, const TraceOptions &,
+    /// (packet_cast.h; the wide traversal only). false: not done, the batch is not coherent.
+    bool (*cast_packets_f32)(const SurfelTree &, const float *, size_t, const TraceOptions &,
                              float, int, CastOutput, bool, BatchStats &);
-    void (*cast_packets_f64)(const SurfelTree &, const double *, size_t, const TraceOptions &,
+    bool (*cast_packets_f64)(const SurfelTree &, const double *, size_t, const TraceOptions &,
                              float, int, CastOutput, bool, BatchStats &);
     /// Closest hits of local rays shifted by `offset` (the renderer's batches; one thread).
     void (*intersect)(const SurfelTree &, const Ray *, size_t, Vec3 offset, const TraceOptions &,

@@ -16,10 +16,13 @@ namespace pointviz {
 POINTVIZ_ISA_BEGIN
 
 /// cast_rays without statistics (`count` must be false), for the wide traversal: coherent
-/// groups of consecutive rays (packet_trace.h, packet_covers) traversed as packets, the others
-/// one at a time. Results equal the single-ray kernels' for every ray, bit for bit.
+/// groups of rays traversed as packets (packet_trace.h, packet_covers) — blocks of 2x4 pixels
+/// when the rays are rows of camera rays in raster order, else groups of kPacket consecutive
+/// rays — and the others one at a time. Results equal the single-ray kernels' for every ray,
+/// bit for bit. Returns false, having done nothing, when the batch does not start with a
+/// coherent group (scattered rays: the single-ray kernels serve them).
 template <class T>
-void cast_packets(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
+bool cast_packets(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
                   float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats);
 
 POINTVIZ_ISA_END

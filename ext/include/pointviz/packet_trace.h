@@ -37,6 +37,9 @@ namespace pointviz {
 
 /// Rays per packet (one bit each in the masks below).
 constexpr int kPacket = 8;
+/// The middle rays of a packet (packet_key_ray): rays 3 and 4 of eight pixels in a row; rays
+/// 1, 2, 5 and 6 of a 2x4 block (the top row's four pixels, then the bottom row's).
+constexpr uint32_t kRowCentre = 0x18u, kBlockCentre = 0x66u;
 /// Least cosine between a packet's first direction and any other: about 2.6 degrees, some
 /// 40 pixels of a 60-degree, 640-pixel camera. Wider groups diverge too often to gain.
 constexpr float kPacketMinCos = 0.999f;
@@ -98,9 +101,12 @@ inline bool packet_before(const PacketChildren &ch, int r, uint32_t a, uint32_t 
     return ta < tb || (!(tb < ta) && a < b);
 }
 
-/// The ray whose entry parameter stands for a slot's in the packet order: the slot's ray
-/// nearest the middle of the packet.
-inline int packet_key_ray(uint32_t active) {
+/// The ray whose entry parameter stands for a slot's in the packet order: one of the slot's
+/// rays in `centre` (the middle of the packet's pixels) if any, else the slot's ray nearest the
+/// middle of the packet in ray order.
+inline int packet_key_ray(uint32_t active, uint32_t centre) {
+    const uint32_t mid = active & centre;
+    if (mid) return __builtin_ctz(mid);
     const uint32_t upper = active & ~((1u << (kPacket / 2 - 1)) - 1u);
     return upper ? __builtin_ctz(upper) : 31 - __builtin_clz(active);
 }
@@ -108,12 +114,13 @@ inline int packet_key_ray(uint32_t active) {
 /// Sorts the used slots near first by the entry parameter of each slot's key ray (a guess at
 /// the shared order) and adds to `leave` the rays of `act` whose own order differs. Writes the
 /// order to `order`; returns how many slots.
-inline int packet_order(const PacketChildren &ch, uint32_t act, uint32_t &leave, uint32_t *order) {
+inline int packet_order(const PacketChildren &ch, uint32_t act, uint32_t centre, uint32_t &leave,
+                        uint32_t *order) {
     int n = 0;
     float key[kWideUsed];
     for (uint32_t m = ch.used; m != 0; m &= m - 1) {
         const uint32_t s = uint32_t(__builtin_ctz(m));
-        const float ts = ch.c[s].t[packet_key_ray(ch.c[s].active)];
+        const float ts = ch.c[s].t[packet_key_ray(ch.c[s].active, centre)];
         int k = n;
         for (; k > 0 && key[k - 1] > ts; --k) {
             order[k] = order[k - 1];
@@ -284,12 +291,13 @@ inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOpti
 }  // namespace detail
 
 /// Closest hits of `n` <= kPacket rays traversed as one packet (no level of detail, no
-/// statistics; use_wide(tree, opt) must hold). A ray whose order of children differs from the
-/// packet's leaves it there and finishes alone (leave_packet). Returns the mask of the rays
-/// that stayed in the packet to the end.
+/// statistics; use_wide(tree, opt) must hold); `centre`: the packet's middle rays. A ray whose
+/// order of children differs from the packet's leaves it there and finishes alone
+/// (leave_packet). Returns the mask of the rays that stayed in the packet to the end.
 template <bool kSlabs>
 uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n,
-                                  const TraceOptions &opt, const LodGates &gates, SurfaceHit *out) {
+                                  const TraceOptions &opt, const LodGates &gates, SurfaceHit *out,
+                                  uint32_t centre = kRowCentre) {
     using namespace detail;
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
@@ -433,7 +441,7 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         if (ch.used) {
             uint32_t order[kWideUsed];
             uint32_t leave = 0;
-            const int k = packet_order(ch, act, leave, order);
+            const int k = packet_order(ch, act, centre, leave, order);
             for (uint32_t m = leave; m != 0; m &= m - 1) {
                 const int r = __builtin_ctz(m);
                 leave_packet<kSlabs>(tree, rays[r], opt, gates, pol[r], r, stack, sp, ch);
@@ -487,9 +495,10 @@ inline bool packet_covers(const SurfelTree &tree, const Ray *rays, int n, const 
 /// Closest hits of `n` <= kPacket rays that packet_covers: traversed as one packet, the rays
 /// that leave it finished alone. Results equal closest_hit's for every ray, bit for bit.
 inline void closest_hits_packet(const SurfelTree &tree, const Ray *rays, int n,
-                                const TraceOptions &opt, const LodGates &gates, SurfaceHit *out) {
-    if (opt.slabs) closest_hits_packet_impl<true>(tree, rays, n, opt, gates, out);
-    else closest_hits_packet_impl<false>(tree, rays, n, opt, gates, out);
+                                const TraceOptions &opt, const LodGates &gates, SurfaceHit *out,
+                                uint32_t centre = kRowCentre) {
+    if (opt.slabs) closest_hits_packet_impl<true>(tree, rays, n, opt, gates, out, centre);
+    else closest_hits_packet_impl<false>(tree, rays, n, opt, gates, out, centre);
 }
 
 POINTVIZ_ISA_END
