@@ -48,16 +48,20 @@ def load(model: str, data: Path):
     return pv.PointCloud(z["p"], normals=z["n"], radii=z["r"])
 
 
-def main(model: str, out: Path, data: Path) -> None:
+def main(model: str, out: Path, data: Path, packets: bool = True) -> None:
     cloud = load(model, data)
     scene = pv.SurfelScene(cloud, variant="full", threads=1)
+    # Builds with packets of coherent rays (packet_trace.h) can turn them off for comparison.
+    has_packets = hasattr(scene._options, "packets")
+    if has_packets:
+        scene._options.packets = packets
     cam = pv.Camera.fit(cloud, width=640, height=480)
     primary = np.ascontiguousarray(np.asarray(cam.rays(), np.float32).reshape(-1, 6))
     rays = {"primary": primary,
             "random": common.random_rays(np.asarray(cloud.points, np.float64), len(primary),
                                          RANDOM_SEED)}
     res = {"model": model, "B_per_surfel": scene.memory_bytes / scene.n_surfels,
-           "pointviz": pv.__file__}
+           "pointviz": pv.__file__, "packets": packets and has_packets}
     for name, r in rays.items():
         t = scene.cast_rays(r)["t_hit"]
         rng = np.random.default_rng(5)
@@ -84,9 +88,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("out", type=Path, help="JSON-lines file the result is appended to")
     p.add_argument("--data", type=Path, default=common.default_data_dir(),
                    help="shared data folder (the dragon's scans)")
+    p.add_argument("--no-packets", action="store_true",
+                   help="closest hits one ray at a time in builds that have packets")
     return p.parse_args(argv)
 
 
 if __name__ == "__main__":
     args = parse_args()
-    main(args.model, args.out, args.data)
+    main(args.model, args.out, args.data, not args.no_packets)

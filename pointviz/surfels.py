@@ -428,7 +428,7 @@ class SurfelScene:
         :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide",
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide", "packets",
                   "shadow_flip_weight", "sky_flip_weight"):
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):

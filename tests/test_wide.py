@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pointviz import PointCloud, SurfelScene, shapes
+from pointviz import Camera, PointCloud, SurfelScene, shapes
 from pointviz.errors import InputError
 
 from test_surfels import brute_first_disk, rays_at_sphere, sphere_oracle
@@ -114,3 +114,57 @@ def test_wide_nodes_memory_and_option(rng):
     assert wide.trace_options().wide and not binary.trace_options().wide
     with pytest.raises(InputError, match="traversal: expected one of"):
         SurfelScene(cloud, traversal="quad")
+
+
+def _packets_and_single(scene, rays, **cast_kw):
+    """Closest hits without statistics (the path packets take), packets on and off."""
+    scene._options.packets = True
+    p = scene.cast_rays(rays, stats=False, **cast_kw)
+    scene._options.packets = False
+    s = scene.cast_rays(rays, stats=False, **cast_kw)
+    scene._options.packets = True
+    return p, s
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus"])
+def test_packets_equal_single_rays_on_camera_grids(shape):
+    """Camera rays in raster order traverse in packets (packet_trace.h): every output equals
+    one ray at a time's, bit for bit, over silhouettes, holes and rays from inside."""
+    cloud = getattr(shapes, shape)(30000)
+    views = [((2.5, -1.5, 1.0), (0.0, 0.0, 0.0), 30.0),    # the whole shape: silhouettes
+             ((0.0, 0.0, 3.0), (0.95, 0.0, 0.0), 4.0),     # the rim up close
+             ((0.0, 0.0, 0.3), (0.0, 1.0, 0.0), 20.0)]     # from inside (the sphere) / the hole
+    for variant, cull in (("full", True), ("full", False), ("lod", False), ("bvh", False)):
+        scene = SurfelScene(cloud, variant=variant, cull=cull)
+        hits = []
+        for eye, target, fov in views:
+            cam = Camera.look_at(eye, target, fov_deg=fov, width=96, height=64)
+            rays = cam.rays()
+            # rows in raster order (blocks of 2x4 pixels), float64 rays, one row alone (groups of
+            # eight consecutive rays), rows of eight, a width not a multiple of 4
+            odd = Camera.look_at(eye, target, fov_deg=fov, width=37, height=23).rays()
+            for name, r in (("raster", rays), ("float64", rays.astype(np.float64)),
+                            ("row", rays[:96]), ("narrow", rays.reshape(64, 96, 6)[:, :8].reshape(-1, 6)),
+                            ("odd", odd)):
+                p, s = _packets_and_single(scene, r)
+                for k in s:
+                    np.testing.assert_array_equal(p[k], s[k], err_msg=f"{variant} {eye} {name} {k}")
+            hits.append(np.isfinite(s["t_hit"]).mean())
+        assert 0.05 < hits[0] < 0.95 and max(hits[1:]) > 0.05, hits
+
+
+def test_packets_leave_lod_and_incoherent_rays_alone(rng):
+    """Level of detail, statistics and scattered rays take the single-ray path: the same
+    answers either way."""
+    cloud = shapes.sphere(20000)
+    scene = SurfelScene(cloud)
+    cam = Camera.look_at((2.0, 1.0, 1.5), (0.0, 0.0, 0.0), fov_deg=40.0, width=64, height=48)
+    rays = cam.rays()
+    p, s = _packets_and_single(scene, rays, pixel_angle=0.01)
+    for k in s:
+        np.testing.assert_array_equal(p[k], s[k])
+    scattered = rays_at_sphere(rng, 2000, dist=3.0)
+    p, s = _packets_and_single(scene, scattered)
+    for k in s:
+        np.testing.assert_array_equal(p[k], s[k])
+    assert scene.trace_options().packets

@@ -526,7 +526,8 @@ NB_MODULE(_core, m) {
         .def_rw("sky_flip_weight", &TraceOptions::sky_flip_weight)
         .def_rw("budget_scale", &TraceOptions::budget_scale)
         .def_rw("isa", &TraceOptions::isa)
-        .def_rw("wide", &TraceOptions::wide);
+        .def_rw("wide", &TraceOptions::wide)
+        .def_rw("packets", &TraceOptions::packets);
 
     nb::class_<CameraModel>(m, "CameraModel")
         .def(nb::init<>())

@@ -88,14 +88,26 @@ const QueryKernels &query_kernels(Isa isa) {
 
 namespace {
 
+/// Whether a batch of closest hits goes to the packet kernels (packet_cast.h): asked for, no
+/// statistics, and the wide traversal serves it.
+bool by_packets(const SurfelTree &tree, const TraceOptions &opt, bool count) {
+    return opt.packets && !count && use_wide(tree, opt);
+}
+
 void cast_with(const QueryKernels &k, const SurfelTree &tree, const float *rays, size_t n,
                const TraceOptions &opt, float pixel_angle, int threads, CastOutput out,
                bool count, BatchStats &stats) {
+    if (by_packets(tree, opt, count) &&
+        k.cast_packets_f32(tree, rays, n, opt, pixel_angle, threads, out, count, stats))
+        return;
     k.cast_f32(tree, rays, n, opt, pixel_angle, threads, out, count, stats);
 }
 void cast_with(const QueryKernels &k, const SurfelTree &tree, const double *rays, size_t n,
                const TraceOptions &opt, float pixel_angle, int threads, CastOutput out,
                bool count, BatchStats &stats) {
+    if (by_packets(tree, opt, count) &&
+        k.cast_packets_f64(tree, rays, n, opt, pixel_angle, threads, out, count, stats))
+        return;
     k.cast_f64(tree, rays, n, opt, pixel_angle, threads, out, count, stats);
 }
 void occluded_with(const QueryKernels &k, const SurfelTree &tree, const float *rays,

@@ -8,6 +8,12 @@
 //   traversal gives the binary one's any hits exactly, the same nearest disk on every ray, and
 //   the same blended hit on all but a few rays (the order in which disks reach the closest-hit
 //   policy may differ, wide_trace.h); statistics agree to within a few percent.
+// * packets (packet_trace.h, packet_cast.h): closest hits of coherent groups traversed together
+//   (8x1 and 2x4 pixels, rays in the SIMD lanes) equal those of one ray at a time bit for bit
+//   (t, normal, colour, radius, surfel, count) on primary grids with holes and silhouettes, rays
+//   from inside, axis-aligned (degenerate) directions, with culling, slabs, boxes and
+//   interpolation on and off, for every instruction set (through cast_rays: 2x4 blocks of the
+//   grid's rows) and the portable kernels directly.
 // The brute-force checks of core_tests run the default traversal, which is the wide one.
 //
 // Random cases are seeded by their index; a failure prints the case to replay.
@@ -21,6 +27,7 @@
 
 #include "pointviz/cast.h"
 #include "pointviz/dispatch.h"
+#include "pointviz/packet_trace.h"
 #include "pointviz/tree.h"
 #include "check.h"
 
@@ -183,8 +190,9 @@ struct Result {
     BatchStats cs, os;
 };
 
-Result run(const SurfelTree &tree, const std::vector<double> &rays, const std::vector<float> &tmax,
-           const TraceOptions &o, float pixel_angle) {
+/// Closest hits of `rays`, with statistics (`count`) or without (the path packets take).
+Result run_closest(const SurfelTree &tree, const std::vector<double> &rays, const TraceOptions &o,
+                   float pixel_angle, bool count) {
     const size_t n = rays.size() / 6;
     Result r;
     r.t.resize(n);
@@ -193,10 +201,16 @@ Result run(const SurfelTree &tree, const std::vector<double> &rays, const std::v
     r.rad.resize(n);
     r.idx.resize(n);
     r.cnt.resize(n);
-    r.occ.resize(n);
     CastOutput out{r.t.data(), r.nrm.data(), r.col.data(), r.rad.data(), r.idx.data(), r.cnt.data()};
-    cast_rays(tree, rays.data(), n, o, pixel_angle, 2, out, true, r.cs);
-    occluded(tree, rays.data(), tmax.data(), n, o, 0.f, pixel_angle, 2, r.occ.data(), true, r.os);
+    cast_rays(tree, rays.data(), n, o, pixel_angle, 2, out, count, r.cs);
+    return r;
+}
+
+Result run(const SurfelTree &tree, const std::vector<double> &rays, const std::vector<float> &tmax,
+           const TraceOptions &o, float pixel_angle) {
+    Result r = run_closest(tree, rays, o, pixel_angle, true);
+    r.occ.resize(r.t.size());
+    occluded(tree, rays.data(), tmax.data(), r.t.size(), o, 0.f, pixel_angle, 2, r.occ.data(), true, r.os);
     return r;
 }
 
@@ -343,6 +357,129 @@ void test_other_box_depth_falls_back() {
     CHECK(single.wide().empty() && !use_wide(single, o), "a one-leaf tree has no wide nodes");
 }
 
+/// Camera rays of a w x h grid in raster order from `eye` toward `at` (field of view `fov`
+/// radians); `axis_aligned`: the grid's centre column and row have exactly zero components.
+std::vector<double> grid_rays(const double *eye, const double *at, int w, int h, double fov) {
+    double f[3], u[3] = {0, 0, 1}, x[3], y[3];
+    for (int k = 0; k < 3; ++k) f[k] = at[k] - eye[k];
+    auto norm = [](double *v) {
+        const double l = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        for (int k = 0; k < 3; ++k) v[k] /= l;
+    };
+    norm(f);
+    if (std::fabs(f[2]) > 0.9) u[0] = 1, u[2] = 0;
+    x[0] = f[1] * u[2] - f[2] * u[1], x[1] = f[2] * u[0] - f[0] * u[2], x[2] = f[0] * u[1] - f[1] * u[0];
+    norm(x);
+    y[0] = x[1] * f[2] - x[2] * f[1], y[1] = x[2] * f[0] - x[0] * f[2], y[2] = x[0] * f[1] - x[1] * f[0];
+    const double s = std::tan(fov / 2) / (w / 2.0);
+    std::vector<double> rays;
+    for (int j = 0; j < h; ++j)
+        for (int i = 0; i < w; ++i) {
+            const double a = (i - w / 2) * s, b = (j - h / 2) * s;  // centre: exactly 0
+            for (int k = 0; k < 3; ++k) rays.push_back(eye[k]);
+            for (int k = 0; k < 3; ++k) rays.push_back(f[k] + a * x[k] + b * y[k]);
+        }
+    return rays;
+}
+
+/// Packets of coherent rays give one ray at a time's closest hits bit for bit.
+void test_packets_equal_single_rays() {
+    const Shape shapes[] = {Shape::RandomDisks, Shape::Sphere, Shape::Plane};
+    // outside looking at the middle, outside along an axis (zero direction components), inside,
+    // at the rim (silhouettes)
+    const double eyes[4][3] = {{3.1, -2.2, 1.3}, {0.0, 0.0, 4.0}, {0.05, -0.1, 0.02}, {0.0, 0.0, 4.0}};
+    const double ats[4][3] = {{0.1, 0.2, -0.1}, {0.0, 0.0, 0.0}, {1.0, 0.3, 0.2}, {0.99, 0.0, 0.0}};
+    size_t kept = 0, total = 0, kept_block = 0, total_block = 0;
+    constexpr size_t kGridW = 37, kGridH = 23;
+    for (int si = 0; si < 3; ++si)
+        for (uint32_t leaf : {4u, 8u})
+            for (uint32_t box_depth : {0u, 3u, 4u}) {
+                const Scene s = make_scene(shapes[si], 6000, 300 + si);
+                const SurfelTree tree = build_tree(s, leaf, box_depth);
+                for (int ei = 0; ei < 4; ++ei) {
+                    // a tight grid (coherent: packets) and a wide one (silhouettes, holes,
+                    // groups beyond kPacketMinCos: one ray at a time)
+                    for (double fov : {0.06, 0.25, 1.4}) {
+                        const std::vector<double> rays = grid_rays(eyes[ei], ats[ei], int(kGridW), int(kGridH), fov);
+                        for (int variant = 0; variant < 4; ++variant) {
+                            TraceOptions o;
+                            o.box_depth = box_depth;
+                            o.cull = variant != 1;
+                            o.slabs = variant != 2;
+                            o.interp = variant == 3 ? Interpolation::Paper : Interpolation::Smooth;
+                            if (variant == 3) o.window = 2.f;
+                            o.packets = false;
+                            o.isa = Isa::Base;
+                            const Result single = run_closest(tree, rays, o, 0.f, false);
+                            o.packets = true;
+                            for (Isa isa : available_isas()) {
+                                o.isa = isa;
+                                const Result p = run_closest(tree, rays, o, 0.f, false);
+                                auto same = [](const auto &a, const auto &b) {
+                                    return std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+                                };
+                                CHECK(same(p.t, single.t) && same(p.nrm, single.nrm) &&
+                                          same(p.col, single.col) && same(p.rad, single.rad) &&
+                                          same(p.idx, single.idx) && same(p.cnt, single.cnt),
+                                      "shape %d leaf %u box depth %u eye %d fov %.2f variant %d %s: "
+                                      "packets differ from single rays", si, leaf, box_depth, ei,
+                                      fov, variant, isa_name(isa));
+                            }
+                            // The portable kernels directly, on groups of eight in a row and
+                            // on blocks of 2x4 pixels (what cast_rays makes of rows of rays in
+                            // raster order): the packet path ran, and most rays of the tight
+                            // grid stayed in their packet.
+                            o.isa = Isa::Base;
+                            const LodGates gates = lod_gates(o);
+                            auto check_group = [&](const size_t *idx, uint32_t centre, size_t &kept_n,
+                                                   size_t &total_n) {
+                                Ray r[kPacket];
+                                for (int k = 0; k < kPacket; ++k) {
+                                    const double *x = &rays[6 * idx[k]];
+                                    const double l = std::sqrt(x[3] * x[3] + x[4] * x[4] + x[5] * x[5]);
+                                    r[k].o = {float(x[0]), float(x[1]), float(x[2])};
+                                    r[k].d = {float(x[3] / l), float(x[4] / l), float(x[5] / l)};
+                                }
+                                if (!packet_covers(tree, r, kPacket, o)) return;
+                                SurfaceHit h[kPacket];
+                                const uint32_t stayed =
+                                    o.slabs ? closest_hits_packet_impl<true>(tree, r, kPacket, o, gates, h, centre)
+                                            : closest_hits_packet_impl<false>(tree, r, kPacket, o, gates, h, centre);
+                                kept_n += size_t(__builtin_popcount(stayed));
+                                total_n += kPacket;
+                                for (int k = 0; k < kPacket; ++k) {
+                                    SurfaceHit one;
+                                    NoStats ns;
+                                    closest_hit(tree, r[k], o, gates, one, ns);
+                                    CHECK(same_bits(one.t, h[k].t) && one.index == h[k].index &&
+                                              same_bits(one.n.x, h[k].n.x) && same_bits(one.color.y, h[k].color.y) &&
+                                              one.count == h[k].count,
+                                          "shape %d leaf %u eye %d variant %d ray %zu: packet differs",
+                                          si, leaf, ei, variant, idx[k]);
+                                }
+                            };
+                            size_t idx[kPacket];
+                            for (size_t g = 0; g + kPacket <= rays.size() / 6; g += kPacket) {
+                                for (int k = 0; k < kPacket; ++k) idx[k] = g + size_t(k);
+                                check_group(idx, kRowCentre, kept, total);
+                            }
+                            for (size_t j = 0; j + 1 < kGridH; j += 2)
+                                for (size_t i = 0; i + 4 <= kGridW; i += 4) {
+                                    for (int k = 0; k < kPacket; ++k)
+                                        idx[k] = (j + size_t(k / 4)) * kGridW + i + size_t(k % 4);
+                                    check_group(idx, kBlockCentre, kept_block, total_block);
+                                }
+                        }
+                    }
+                }
+            }
+    CHECK(total > 0 && kept * 2 > total, "packets ran: %zu of %zu rays stayed in theirs", kept, total);
+    CHECK(total_block > 0 && kept_block * 2 > total_block,
+          "2x4 packets ran: %zu of %zu rays stayed in theirs", kept_block, total_block);
+    std::printf("wide_tests: %zu of %zu rays stayed in their packet of 8x1, %zu of %zu of 2x4\n",
+                kept, total, kept_block, total_block);
+}
+
 }  // namespace
 
 int main() {
@@ -350,6 +487,7 @@ int main() {
     test_wide_equals_binary();
     test_every_isa_equals_base();
     test_other_box_depth_falls_back();
+    test_packets_equal_single_rays();
     std::printf("wide_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
                 pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;

@@ -1,6 +1,6 @@
 // pointviz — choosing the traversal kernels at run time: one build runs on any x86-64 CPU and
 // uses AVX2 or AVX-512 where the CPU has them. The kernels of each instruction set are the same
-// source (ext/src/cast.cpp) compiled with that set's flags (isa.h, ext/CMakeLists.txt).
+// sources (ext/src/cast.cpp, ext/src/packet_cast.cpp) compiled with that set's flags (isa.h, ext/CMakeLists.txt).
 #pragma once
 
 #include <cstddef>
@@ -24,6 +24,12 @@ struct QueryKernels {
                          const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
     void (*occluded_f64)(const SurfelTree &, const double *, const float *, size_t,
                          const TraceOptions &, float, float, int, uint8_t *, bool, BatchStats &);
+    /// cast_f32 / cast_f64 without statistics, coherent groups of rays as packets
+    /// (packet_cast.h; the wide traversal only). false: not done, the batch is not coherent.
+    bool (*cast_packets_f32)(const SurfelTree &, const float *, size_t, const TraceOptions &,
+                             float, int, CastOutput, bool, BatchStats &);
+    bool (*cast_packets_f64)(const SurfelTree &, const double *, size_t, const TraceOptions &,
+                             float, int, CastOutput, bool, BatchStats &);
     /// Closest hits of local rays shifted by `offset` (the renderer's batches; one thread).
     void (*intersect)(const SurfelTree &, const Ray *, size_t, Vec3 offset, const TraceOptions &,
                       SurfaceHit *);

@@ -15,6 +15,11 @@
 #include "pointviz/lod.h"
 #include "pointviz/tree.h"
 
+/// Inlined whatever the compiler's inlining budget says: steps factored out of the single-ray
+/// traversal so that the packet traversal (packet_trace.h) can share them; always inlined, the
+/// single-ray traversal compiles as it did with them written in place.
+#define POINTVIZ_HOT_INLINE __attribute__((always_inline)) inline
+
 namespace pointviz {
 
 /// How the disks around a hit are combined (section 2.1).
@@ -55,6 +60,10 @@ struct TraceOptions {
     /// Traverse the wide tree (wide.h, wide_trace.h): two levels' bounds tested at once with
     /// SIMD, the binary traversal's decisions. false: the binary traversal, for comparison.
     bool wide = true;
+    /// Closest hits of coherent groups of rays (one origin, close directions: camera rays in
+    /// raster order) traverse the wide tree as packets (packet_trace.h); same results as one
+    /// ray at a time, bit for bit. false: one ray at a time, for comparison.
+    bool packets = true;
     /// Budget only: what the batch's secondary rays (width0 > 0) are for, which picks their
     /// error model (lod.h, RayKind); Camera: not said (the predictor's share, as for any ray).
     RayKind kind = RayKind::Camera;
@@ -419,12 +428,21 @@ void traverse_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &o
     }
 }
 
+/// Where a wide traversal starts: at the root, with an empty stack (a ray that misses the
+/// root's bound ends at once).
+struct WideRoot {
+    static constexpr bool kFromRoot = true;
+    void operator()(detail::StackEntry &, detail::StackEntry *, int &) const {}
+};
+
 /// The wide traversal (wide_trace.h, which defines it): the same decisions as traverse_impl,
 /// with the bounds of two levels tested at once. Callers that instantiate the queries below
-/// include wide_trace.h.
-template <bool kSlabs, class Policy, class Stats>
+/// include wide_trace.h. `start` may replace the root entry and the empty stack before the
+/// loop runs: a ray that leaves a packet (packet_trace.h) continues from where the packet was.
+template <bool kSlabs, class Policy, class Stats, class Start = WideRoot>
 void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                        const LodGates &gates, bool cull, Policy &policy, Stats &stats);
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats,
+                        Start start = {});
 
 /// Whether the wide traversal serves `opt` on `tree`: asked for, and the tree's wide nodes
 /// were built for the box depth the options use (a different one, e.g. boxes on every level,
@@ -462,13 +480,10 @@ inline void candidate_attributes(const SurfelTree &tree, uint32_t ref, Vec3 &n, 
     }
 }
 
-/// Closest hit with interpolation over the disks facing the same way as the nearest one,
-/// within the depth window (paper section 2.1).
-template <class Stats>
-bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
-    detail::Gather g(ray.tmax, opt.window);
-    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+/// The hit a closest-hit traversal's gathered disks make (`g`): the blend of closest_hit.
+POINTVIZ_HOT_INLINE bool finish_closest(const SurfelTree &tree, const TraceOptions &opt,
+                                       const detail::Gather &g,
+                           SurfaceHit &out) {
     out = SurfaceHit{};
     if (g.n == 0) return false;
     const detail::Candidate &best = g.c[0];
@@ -509,6 +524,16 @@ bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt
     out.index = (best.ref & detail::kNodeFlag) ? -2 : int32_t(best.ref);
     out.count = used;
     return true;
+}
+
+/// Closest hit with interpolation over the disks facing the same way as the nearest one,
+/// within the depth window (paper section 2.1).
+template <class Stats>
+bool closest_hit(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+                 const LodGates &gates, SurfaceHit &out, Stats &stats) {
+    detail::Gather g(ray.tmax, opt.window);
+    traverse(tree, ray, opt, gates, opt.cull, g, stats);
+    return finish_closest(tree, opt, g, out);
 }
 
 /// Any hit in [ray.tmin, ray.tmax]: shadow rays. Two-sided unless `cull` is asked for.

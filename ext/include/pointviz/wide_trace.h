@@ -91,10 +91,10 @@ inline V smax(V a, V b) { return vmax(b, a); }
 
 /// Box of each lane V: the operations of enter_box in the same order, so that every lane gives
 /// the scalar test's answer bit for bit. Returns the lanes entered within [ray.tmin, tfar];
-/// writes their entry parameter to `t` (kInf elsewhere).
-template <class V>
-inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const Ray &ray, Vec3 inv_d, float tfar,
-                      V &t) {
+/// writes their entry parameter to `t` (kInf elsewhere). The ray is a Ray (one ray against the
+/// lanes' boxes) or a PacketLanes (packet_trace.h: one box, broadcast, against a ray per lane).
+template <class V, class R = Ray, class I = Vec3, class T = float>
+inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const R &ray, I inv_d, T tfar, V &t) {
     const V ox(ray.o.x), oy(ray.o.y), oz(ray.o.z);
     const V ix(inv_d.x), iy(inv_d.y), iz(inv_d.z);
     const V t0x = (lx - ox) * ix, t1x = (hx - ox) * ix;
@@ -111,10 +111,10 @@ inline auto box_lanes(V lx, V ly, V lz, V hx, V hy, V hz, const Ray &ray, Vec3 i
 /// (kSlabs) or enter_sphere in the same order, so that every lane gives the scalar test's answer
 /// bit for bit. A slab half-width of +inf leaves t0 and t1 as they are (no slab). Returns the
 /// lanes entered; writes their entry parameter to `t` (kInf elsewhere) and the cosine of their
-/// cone axis with the ray to `cosv`.
-template <bool kSlabs, class V>
-inline auto sphere_slab_lanes(V cx, V cy, V cz, V r, V ax, V ay, V az, V h, const Ray &ray,
-                              float tfar, V &t, V &cosv) {
+/// cone axis with the ray to `cosv`. The ray is a Ray or a PacketLanes, as for box_lanes.
+template <bool kSlabs, class V, class R = Ray, class T = float>
+inline auto sphere_slab_lanes(V cx, V cy, V cz, V r, V ax, V ay, V az, V h, const R &ray, T tfar,
+                              V &t, V &cosv) {
     const V ox(ray.o.x), oy(ray.o.y), oz(ray.o.z);
     const V dx(ray.d.x), dy(ray.d.y), dz(ray.d.z);
     // cone_admits' dot(axis, d), which is also the slab's dot(d, axis) bit for bit
@@ -243,12 +243,13 @@ inline void prefetch_entry(const SurfelTree &tree, uint32_t ref, uint32_t depth)
 
 }  // namespace detail
 
-template <bool kSlabs, class Policy, class Stats>
+template <bool kSlabs, class Policy, class Stats, class Start>
 void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                        const LodGates &gates, bool cull, Policy &policy, Stats &stats) {
+                        const LodGates &gates, bool cull, Policy &policy, Stats &stats,
+                        Start start) {
     using namespace detail;
     const RaySetup rs(tree, ray, opt, gates, policy, std::integral_constant<bool, kSlabs>());
-    if (rs.t_root == kInf) return;
+    if (Start::kFromRoot && rs.t_root == kInf) return;
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
     const bool lod = rs.lod;
@@ -259,6 +260,7 @@ void traverse_wide_impl(const SurfelTree &tree, const Ray &ray, const TraceOptio
     StackEntry stack[kStackSize];
     int sp = 0;
     StackEntry e{0u, rs.t_root, 0, uint16_t(cull ? kCull : 0), 0u};
+    start(e, stack, sp);
 
     for (;;) {
         bool descend = false;

@@ -1,0 +1,29 @@
+// pointviz — the batch queries that trace coherent groups of rays as packets (packet_trace.h).
+// They live in their own translation unit (ext/src/packet_cast.cpp), compiled once per
+// instruction set as the single-ray kernels of ext/src/cast.cpp are, so that the single-ray
+// traversal there compiles exactly as it does without them; dispatch.cpp enters them once per
+// batch, and they take one chunk of rays at a time.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "pointviz/cast.h"
+#include "pointviz/isa.h"
+#include "pointviz/trace.h"
+
+namespace pointviz {
+POINTVIZ_ISA_BEGIN
+
+/// cast_rays without statistics (`count` must be false), for the wide traversal: coherent
+/// groups of rays traversed as packets (packet_trace.h, packet_covers) — blocks of 2x4 pixels
+/// when the rays are rows of camera rays in raster order, else groups of kPacket consecutive
+/// rays — and the others one at a time. Results equal the single-ray kernels' for every ray,
+/// bit for bit. Returns false, having done nothing, when the batch does not start with a
+/// coherent group (scattered rays: the single-ray kernels serve them).
+template <class T>
+bool cast_packets(const SurfelTree &tree, const T *rays, size_t n, const TraceOptions &opt,
+                  float pixel_angle, int threads, CastOutput out, bool count, BatchStats &stats);
+
+POINTVIZ_ISA_END
+}  // namespace pointviz
