@@ -40,11 +40,24 @@ full detail: the error that kind's level of detail adds. The calibrated weight i
 one whose added error stays within KIND_SHARE x (E - floor) on every frame; the chart shows
 the added error against the weight.
 
+The colour term's response within a pixel (``--colour``): a node no wider than the ray's
+footprint is charged ``response x`` its colour term (lod.h, kColourPixelResponse: FLIP's
+contrast sensitivity attenuates a difference at the pixel's scale). The budget frames (1 spp,
+shadows, sky occlusion, one reflection) of the striped torus at 1x, 2.5x and 7.5x, for each
+response in COLOUR_RESPONSES and each E in COLOUR_BUDGETS, are compared with the full-detail frame
+(mean LDR-FLIP at full detail's exposure and at the frame's own: the automatic exposure follows
+the object's mean, the first thing to give). At E = 0.005 (the default) the smallest response
+whose frames all stay within E at both exposures is where the automatic exposure starts to give;
+the core takes the next larger value tried, one step from it. Frames at E = 0.002 are reported
+(the 8M torus exceeds 0.002 with a response of 1 already). Cases: the 200k torus at 160x120 (the test's frame, where the
+stripes alias), 1M and the issue's 8M at 480x360.
+
 Examples
 --------
 python benchmarks/lod_budget.py --quick
 python benchmarks/lod_budget.py             # torus 1M (coloured), Armadillo 1M, dragon scans
 python benchmarks/lod_budget.py --secondary --out benchmarks/results/lod_budget/secondary
+python benchmarks/lod_budget.py --colour --out benchmarks/results/lod_budget/colour
 """
 
 from __future__ import annotations
@@ -392,12 +405,95 @@ def main_secondary(args) -> int:
     return 0
 
 
+#: Responses of the colour term within a pixel tried by --colour, the budgets, and the cases
+#: (surfels, width, height).
+COLOUR_RESPONSES = (1.0, 0.5, 0.375, 0.3, 0.25, 0.125)
+COLOUR_BUDGETS = (0.002, 0.005)
+DEFAULT_COLOUR_BUDGET = 0.005
+COLOUR_CASES = ((200_000, 160, 120), (1_000_000, 480, 360), (8_000_000, 480, 360))
+
+
+def measure_colour(n: int, w: int, h: int, args) -> list[dict]:
+    """Per distance, E and response: the budget frame's FLIP against full detail."""
+    import flip_evaluator
+    import pointviz
+
+    model = striped_torus(n)
+    scene = pointviz.SurfelScene(model.cloud, variant="full", threads=args.threads)
+    opts = scene._options  # the response rides on the scene's traversal options
+    default = opts.colour_pixel_response
+    base = pointviz.Camera.fit(model.cloud, width=w, height=h)
+    kw = dict(spp=1, shadows=True, reflections=1, threads=args.threads)
+    rows = []
+    for factor in DISTANCES:
+        cam = pf.camera_at(base, factor)
+        full = pointviz.render(scene, cam, lod_pixels=0.0, **kw)
+        ref = full.to_srgb8().astype(np.float32) / 255.0
+
+        def flip(frame, exposure):
+            img = frame.to_srgb8(exposure=exposure).astype(np.float32) / 255.0
+            return float(flip_evaluator.evaluate(ref, img, pf.FLIP_RANGE, applyMagma=False)[1])
+
+        for e in COLOUR_BUDGETS:
+            for resp in COLOUR_RESPONSES:
+                opts.colour_pixel_response = resp
+                fr = pointviz.render(scene, cam, lod_pixels="auto", max_error=e, **kw)
+                row = {"n": n, "size": f"{w}x{h}", "factor": factor, "max_error": e,
+                       "response": resp, "flip": flip(fr, full.exposure), "flip_own": flip(fr, None)}
+                rows.append(row)
+                print(f"torus {n:>9} {w}x{h} {factor:>4g}x E {e:<6g} response {resp:<6g} FLIP "
+                      f"{row['flip']:.4f} (own exposure {row['flip_own']:.4f})", flush=True)
+    opts.colour_pixel_response = default
+    return rows
+
+
+def fit_colour(rows: list[dict]) -> dict:
+    """The smallest response within E = DEFAULT_COLOUR_BUDGET at both exposures on every frame,
+    and the calibrated one: the next larger response tried."""
+    from pointviz import _core
+
+    def worst_at(e):
+        return {r: max(max(x["flip"], x["flip_own"]) / x["max_error"] for x in rows
+                       if x["response"] == r and x["max_error"] == e) for r in COLOUR_RESPONSES}
+
+    worst = {e: worst_at(e) for e in COLOUR_BUDGETS}
+    ok = sorted(r for r in COLOUR_RESPONSES if worst[DEFAULT_COLOUR_BUDGET][r] <= 1.0)
+    larger = [r for r in sorted(COLOUR_RESPONSES) if ok and r > ok[0]]
+    fit_ = {"smallest_within_E": ok[0] if ok else None,
+            "response": (larger[0] if larger else ok[0]) if ok else None,
+            "worst_flip_over_E": {str(e): w for e, w in worst.items()},
+            "core_default": _core.TraceOptions().colour_pixel_response}
+    return fit_
+
+
+def main_colour(args) -> int:
+    cases = ((pf.QUICK_SIZE, pf.QUICK_PIXELS, pf.QUICK_PIXELS),) if args.quick else COLOUR_CASES
+    rows = []
+    for n, w, h in cases:
+        rows += measure_colour(n, w, h, args)
+    fit_ = fit_colour(rows)
+    print(f"smallest response within E = {DEFAULT_COLOUR_BUDGET} at both exposures "
+          f"{fit_['smallest_within_E']}, calibrated (one step above) {fit_['response']}, core "
+          f"default {fit_['core_default']}")
+    for e in COLOUR_BUDGETS:
+        print(f"  E {e}: worst FLIP / E per response "
+              + ", ".join(f"{k:g}: {v:.2f}" for k, v in fit_["worst_flip_over_E"][str(e)].items()))
+    result = {"benchmark": "lod_budget_colour", "date": time.strftime("%Y-%m-%dT%H:%M:%S"),
+              "machine": pf.machine_info(), "args": {k: str(v) for k, v in vars(args).items()},
+              "fit": fit_, "rows": rows}
+    path = pf.write_json(args.out, "lod_colour.json", result)
+    print(f"\nwrote {path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Measure, fit, print; write JSON and a chart to benchmarks/results/lod_budget/."""
     p = pf.base_parser(__doc__.split("\n\n")[0], "lod_budget")
     p.set_defaults(threads=2)
     p.add_argument("--secondary", action="store_true",
                    help="calibrate the visibility model's weights of shadow and sky rays")
+    p.add_argument("--colour", action="store_true",
+                   help="calibrate the colour term's response within a pixel")
     args = p.parse_args(argv)
     probe = common.probe_pointviz()
     if not probe.available:
@@ -405,6 +501,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.secondary:
         return main_secondary(args)
+    if args.colour:
+        return main_colour(args)
     rows = []
     models = load(args)
     for model in models:

@@ -429,7 +429,7 @@ class SurfelScene:
         o = _core.TraceOptions()
         for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
                   "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide", "packets",
-                  "shadow_flip_weight", "sky_flip_weight"):
+                  "shadow_flip_weight", "sky_flip_weight", "colour_pixel_response"):
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):
             _, max_error = check_lod(lod_pixels, max_error)

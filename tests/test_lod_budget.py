@@ -212,6 +212,45 @@ def test_node_colour_spread_bounds_the_subtree(rng):
         assert na["radius"][i] >= reach * (1 - 1e-5)
 
 
+def test_stopped_nodes_keep_the_mean_radiance():
+    """A flat patch of fine two-colour stripes seen from far away, every node stopped (the
+    coarsest frame the tree allows), shows the mean radiance of its colours: what the same patch
+    in one colour, the mean of the decoded colours coded back, shows at full detail (one sample a
+    pixel would alias the stripes themselves). The mean of the sRGB codes would be 46 % darker:
+    decode(0.5) = 0.21 against (decode(0.1) + decode(0.9)) / 2 = 0.40."""
+    g = np.linspace(-1.0, 1.0, 200)
+    x, y = np.meshgrid(g, g)
+    p = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    normals = np.tile([0.0, 0.0, 1.0], (len(p), 1))
+    stripe = (np.arange(200)[None, :] % 2 == 0).repeat(200, axis=0).ravel()
+
+    def decode(c):
+        return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+    def encode(v):
+        return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+
+    mean = float(encode((decode(0.1) + decode(0.9)) / 2))
+    cam = pointviz.Camera.look_at([0.0, -0.3, 12.0], [0.0, 0.0, 0.0], up=[0, 1, 0], fov_deg=30,
+                                  width=160, height=120)
+    kw = dict(spp=1, shadows=False, reflections=0, threads=2, look="flat", ground=None)
+
+    def frame(colors, lod_pixels):
+        cloud = pointviz.PointCloud(p, normals=normals, colors=colors, radii=0.012)
+        fr = pointviz.render(pointviz.SurfelScene(cloud, variant="full"), cam,
+                             lod_pixels=lod_pixels, **kw)
+        m = fr.object_alpha > 0
+        assert m.sum() > 500
+        return fr.color[m].mean(axis=0)
+
+    striped = np.where(stripe[:, None], 0.9, 0.1) * np.ones((1, 3))
+    coarse = frame(striped, 1e9)
+    uniform = frame(np.full((len(p), 3), mean), 0)
+    np.testing.assert_allclose(coarse, uniform, rtol=0.03)
+    codes_mean = frame(np.full((len(p), 3), 0.5), 0)
+    assert np.all(codes_mean < 0.7 * coarse)   # the test tells the two apart
+
+
 @pytest.mark.parametrize("kwargs, word", [
     ({"lod_pixels": "auto", "max_error": -0.001}, "max_error"),
     ({"lod_pixels": "auto", "max_error": float("nan")}, "max_error"),

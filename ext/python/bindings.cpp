@@ -524,6 +524,7 @@ NB_MODULE(_core, m) {
         .def_rw("max_error", &TraceOptions::max_error)
         .def_rw("shadow_flip_weight", &TraceOptions::shadow_flip_weight)
         .def_rw("sky_flip_weight", &TraceOptions::sky_flip_weight)
+        .def_rw("colour_pixel_response", &TraceOptions::colour_pixel_response)
         .def_rw("budget_scale", &TraceOptions::budget_scale)
         .def_rw("isa", &TraceOptions::isa)
         .def_rw("wide", &TraceOptions::wide)

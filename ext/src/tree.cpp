@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <numeric>
 #include <stdexcept>
 
@@ -14,8 +15,25 @@ namespace {
 /// Per-node sums carried up the tree during the build.
 struct Sums {
     Vec3 nsum;     ///< sum of normals
-    Vec3 csum;     ///< sum of colours
+    Vec3 lsum;     ///< sum of linear colours (sRGB-decoded): the node's mean colour
 };
+
+/// The linear value of each 8-bit sRGB code (the renderer decodes hit colours the same way).
+struct SrgbTable {
+    float linear[256];
+    SrgbTable() {
+        for (int i = 0; i < 256; ++i) {
+            const float c = float(i) * (1.f / 255.f);
+            linear[i] = c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+        }
+    }
+    Vec3 decode(uint32_t rgba) const {
+        return {linear[rgba & 0xffu], linear[(rgba >> 8) & 0xffu], linear[(rgba >> 16) & 0xffu]};
+    }
+};
+inline float srgb_encode(float v) {
+    return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.f / 2.4f) - 0.055f;
+}
 
 /// Component-wise min / max that ignore a NaN in `b` (as vmin / vmax do) but compile to one
 /// instruction each instead of calls to fminf / fmaxf: the build's box loops run over every
@@ -171,6 +189,7 @@ SurfelTree SurfelTreeBuild::finish() {
     nodes_.resize(n_nodes);
     std::vector<Box> boxes(n_nodes);
     std::vector<Sums> sums(n_nodes);
+    const SrgbTable srgb;
     const uint32_t levels = uint32_t(level_start_.size() - 1);
     for (uint32_t lvl = levels; lvl-- > 0;) {
         size_t b0 = level_start_[lvl], e0 = level_start_[lvl + 1];
@@ -184,12 +203,12 @@ SurfelTree SurfelTreeBuild::finish() {
                 Vec3 c{0, 0, 0};
                 if (!interior) {
                     Box bx{{kInf, kInf, kInf}, {-kInf, -kInf, -kInf}};
-                    sm.nsum = sm.csum = {0, 0, 0};
+                    sm.nsum = sm.lsum = {0, 0, 0};
                     for (uint32_t k = r.b; k < r.e; ++k) {
                         const Surfel &s = surfels_[k];
                         c += s.p;
                         sm.nsum += s.n;
-                        sm.csum += Vec3{channel(s.rgba, 0), channel(s.rgba, 1), channel(s.rgba, 2)};
+                        sm.lsum += srgb.decode(s.rgba);
                         Vec3 ext{s.r, s.r, s.r};
                         bx.lo = lower(bx.lo, s.p - ext);
                         bx.hi = upper(bx.hi, s.p + ext);
@@ -202,7 +221,7 @@ SurfelTree SurfelTreeBuild::finish() {
                     float w0 = float(ranges[fc].size()), w1 = float(ranges[fc + 1].size());
                     c = (nodes_[fc].c * w0 + nodes_[fc + 1].c * w1) / (w0 + w1);
                     sm.nsum = sums[fc].nsum + sums[fc + 1].nsum;
-                    sm.csum = sums[fc].csum + sums[fc + 1].csum;
+                    sm.lsum = sums[fc].lsum + sums[fc + 1].lsum;
                     boxes[i] = {vmin(boxes[fc].lo, boxes[fc + 1].lo), vmax(boxes[fc].hi, boxes[fc + 1].hi)};
                     nd.index_count = fc;
                 }
@@ -218,7 +237,15 @@ SurfelTree SurfelTreeBuild::finish() {
                 for (int k = 0; k < 3; ++k) nd.axis_q[k] = quantize_axis(axis[k]);
                 const Vec3 aq = nd.axis();
                 const float aq2 = length2(aq);
-                const Vec3 mc = sm.csum / float(r.size());
+                // The node's colour is its surfels' mean radiance: the mean of their linear
+                // colours, coded back to sRGB (a mean of the codes is darker wherever the
+                // colours differ, and a stopped node would darken the object: benchmarks/
+                // README.md, "Issue 18, the colour term against what FLIP sees"). The colour
+                // spread is the RMS deviation of the codes from that colour (at least their
+                // deviation from their own mean: still a bound of it).
+                const Vec3 ml = sm.lsum / float(r.size());
+                const uint32_t node_rgb = pack_rgb(srgb_encode(ml.x), srgb_encode(ml.y), srgb_encode(ml.z));
+                const Vec3 mc{channel(node_rgb, 0), channel(node_rgb, 1), channel(node_rgb, 2)};
                 float radius = 0.f, cosmin = 1.f, h = 0.f, cdev = 0.f;
                 for (uint32_t k = r.b; k < r.e; ++k) {
                     const Surfel &s = surfels_[k];
@@ -248,7 +275,7 @@ SurfelTree SurfelTreeBuild::finish() {
                     float q = std::ceil((h * (1.f + 1e-5f) + 1e-6f * radius) / radius * 255.f);
                     slab_q = q < float(kNoSlab) ? uint32_t(q) : kNoSlab;  // NaN: no slab
                 }
-                nd.rgb_slab = (pack_rgb(mc.x, mc.y, mc.z) & 0xffffffu) | (slab_q << 24);
+                nd.rgb_slab = (node_rgb & 0xffffffu) | (slab_q << 24);
             }
         });
     }

@@ -585,6 +585,19 @@ void test_lod_budget() {
     Node striped = flat;
     striped.radius = radius_with_byte(1.f, 60);
     CHECK(!budget_allows(striped, 10.f, 0.005f - kBudgetFloor, 1.f), "colour-spread node stopped by the size share");
+    // The colour term's response: a node within a footprint whose colour term exceeds the
+    // budget by less than 1 / kColourPixelResponse stops (by the size share); wider than a
+    // footprint it does not; with a response of 1 it never does.
+    {
+        const float term = colour_term(striped.colour_spread());
+        const float budget = 0.5f * (kColourPixelResponse * term + term);   // between the two
+        CHECK(kColourPixelResponse < 1.f && budget < term, "test needs a response below 1");
+        CHECK(budget_allows(striped, 2.01f, budget, 1.f), "sub-footprint node refused within its response");
+        CHECK(!budget_allows(striped, 1.9f, budget, 1.f), "node wider than a footprint took the response");
+        CHECK(!budget_allows(striped, 2.01f, budget, 1.f, 1.f), "response 1 stopped an over-budget node");
+        CHECK(colour_response(2.f, 2.f, 0.5f) == 0.5f && colour_response(2.1f, 2.f, 0.5f) == 1.f &&
+                  colour_response(1.f, 2.f, 3.f) == 1.f, "colour_response");
+    }
 
     // The per-ray gate (LodGate) against budget_allows over every colour byte and a sweep of
     // cone values: a node it refuses is never allowed at any footprint (it is a necessary
@@ -595,7 +608,8 @@ void test_lod_budget() {
             const float budget = e - kBudgetFloor;
             const LodGate gate = budget_gate(budget, share);
             if (gate.colour_max < 255)
-                CHECK(colour_term(Node::decode_colour_spread(uint32_t(gate.colour_max + 1))) > budget,
+                CHECK(colour_term(Node::decode_colour_spread(uint32_t(gate.colour_max + 1))) *
+                              std::min(1.f, kColourPixelResponse) > budget,
                       "E %g: colour bound %d not tight", e, gate.colour_max);
             if (share == 0.f && gate.cone_max < int32_t(kConeNeverQ) - 1)
                 CHECK(spread_term(Node::decode_cone(uint32_t(gate.cone_max + 1))) > budget,

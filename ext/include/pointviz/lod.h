@@ -35,6 +35,20 @@ constexpr float kBudgetFloor = 0.0005f;
 /// Largest node, in footprints, the budget may stop at: the calibrated range. Beyond it a flat
 /// node could hide a silhouette its spread does not predict.
 constexpr float kBudgetMaxExtent = 8.f;
+/// The colour term's response for nodes no wider than the ray's footprint, relative to
+/// kColourWeight (fitted on stops of up to kBudgetMaxExtent footprints). FLIP filters both
+/// frames by the eye's contrast sensitivity before it compares colours, and that sensitivity
+/// falls steeply with spatial frequency: where a node within a pixel is stopped, full detail
+/// shows one sample of its colours (one sample a pixel) and the stopped frame their mean, a
+/// difference at the pixel's scale, which FLIP attenuates more than the same spread across
+/// several pixels. Nodes wider than a footprint keep the full weight. Calibrated against
+/// measured FLIP (benchmarks/lod_budget.py --colour; benchmarks/README.md, "Issue 18, the
+/// colour term against what FLIP sees"): on the striped torus (200k at 160x120, 1M and 8M at
+/// 480x360; 1x, 2.5x, 7.5x) the smallest response whose frames at E = 0.005 stay within E at
+/// full detail's exposure and at their own is 0.375; this is the next value tried above it. What
+/// gives first is the automatic exposure: at 0.3 the 200k frame at 7.5x moves by a code value
+/// (FLIP 0.036 at its own exposure, 0.0011 at full detail's).
+constexpr float kColourPixelResponse = 0.5f;
 
 /// What a ray is for. The budget's error model depends on it: a camera or reflection ray's hit
 /// is a colour and a normal (the predictor above), a shadow or sky-visibility ray's hit is one
@@ -94,6 +108,12 @@ inline float colour_term(float colour_spread) {
 /// The predictor's normal-spread term for a cone's sine (2: no cone).
 inline float spread_term(float cone) { return kBudgetScale * kSpreadWeight * std::min(cone, 1.f); }
 
+/// The colour term's response for a node of diameter `size` seen with footprint `fp`, `pixel` the
+/// response within one footprint (kColourPixelResponse, or TraceOptions' calibration override).
+inline float colour_response(float size, float fp, float pixel) {
+    return size <= fp ? std::min(1.f, pixel) : 1.f;
+}
+
 /// Predicted error of stopping at `nd` (nodes without a cone never stop: caller's check).
 inline float predicted_error(const Node &nd) {
     return kBudgetScale * (kSpreadWeight * std::min(nd.cone(), 1.f) +
@@ -103,18 +123,22 @@ inline float predicted_error(const Node &nd) {
 /// Whether the budget allows stopping at `nd`, seen with footprint `fp` (ray width at its
 /// centre), `budget` the error the pixel may take above the floor (max_error - kBudgetFloor,
 /// times TraceOptions::budget_scale for primary rays), `size_pixels` being the size rule's share (nodes below that many footprints stop
-/// on their colour term alone; 0: none):
+/// on their colour term alone; 0: none), `pixel_response` the colour term's response within
+/// one footprint (kColourPixelResponse):
 /// * never above kBudgetMaxExtent footprints (the calibrated range);
-/// * never when the colour term alone exceeds the budget: averaging
-///   a node's colours is what a 1-spp frame sees as error even below a pixel (a striped torus
-///   at 7.5x: FLIP 0.035 under the plain 1 px size rule);
+/// * never when the colour term alone, times its response at the node's projected size,
+///   exceeds the budget: averaging a node's colours is what a 1-spp frame sees as error even
+///   below a pixel, if attenuated there (a striped torus 300k at 7.5x: FLIP 0.035 under the
+///   plain 1 px size rule);
 /// * below `size_pixels` footprints the normal spread is not counted: the pixel averages it
 ///   (the 1 px size rule costs at most 0.0026 on uncoloured scenes, SIZE_RULE_ERROR in Python);
 /// * above, the whole predicted error must fit.
-inline bool budget_allows(const Node &nd, float fp, float budget, float size_pixels) {
+inline bool budget_allows(const Node &nd, float fp, float budget, float size_pixels,
+                          float pixel_response = kColourPixelResponse) {
     const float size = 2.f * nd.radius;
     if (!(size <= kBudgetMaxExtent * fp)) return false;
-    const float colour = colour_term(nd.colour_spread());
+    const float colour =
+        colour_term(nd.colour_spread()) * colour_response(size, fp, pixel_response);
     if (colour > budget) return false;
     return size <= size_pixels * fp || colour + spread_term(nd.cone()) <= budget;
 }
@@ -164,16 +188,20 @@ struct LodGate {
     }
 };
 
-/// The gate of budget_allows for `budget` and `size_pixels`: the colour term alone must fit;
-/// without a size share (size_pixels 0), so must the spread term (the sum of the two
-/// non-negative terms is at least either).
-inline LodGate budget_gate(float budget, float size_pixels) {
+/// The gate of budget_allows for `budget`, `size_pixels` and `pixel_response`: the colour term
+/// alone at its smallest response (within one footprint) must fit; without a size share
+/// (size_pixels 0), so must the spread term (the sum of the two non-negative terms is at least
+/// either).
+inline LodGate budget_gate(float budget, float size_pixels,
+                           float pixel_response = kColourPixelResponse) {
     LodGate g;
-    const auto colour_fits = [budget](int32_t q) {
-        return colour_term(Node::decode_colour_spread(uint32_t(q))) <= budget;
+    const float least = std::min(1.f, pixel_response);
+    const auto colour_fits = [budget, least](int32_t q) {
+        return colour_term(Node::decode_colour_spread(uint32_t(q))) * least <= budget;
     };
-    const float k = colour_term(Node::decode_colour_spread(255));
-    const float guess = budget > 0.f ? 255.f * std::sqrt(std::min(budget / k, 1.f)) : -1.f;
+    const float k = colour_term(Node::decode_colour_spread(255)) * least;
+    const float guess = budget > 0.f && k > 0.f ? 255.f * std::sqrt(std::min(budget / k, 1.f))
+                                                : budget > 0.f ? 255.f : -1.f;
     g.colour_max = largest_fitting(int32_t(guess), 255, colour_fits);
     if (!(size_pixels > 0.f)) {
         const auto cone_fits = [budget](int32_t q) {

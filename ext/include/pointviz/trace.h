@@ -71,6 +71,9 @@ struct TraceOptions {
     /// the defaults are the calibrated ones, benchmarks/lod_budget.py --secondary varies them).
     float shadow_flip_weight = kShadowFlipWeight;
     float sky_flip_weight = kSkyFlipWeight;
+    /// Budget only: the colour term's response at one footprint (lod.h, kColourPixelResponse;
+    /// benchmarks/lod_budget.py --colour varies it).
+    float colour_pixel_response = kColourPixelResponse;
 };
 
 POINTVIZ_ISA_BEGIN
@@ -104,10 +107,12 @@ inline float flip_weight(const TraceOptions &opt) {
 inline LodGates lod_gates(const TraceOptions &opt) {
     LodGates g;
     if (opt.lod_criterion == LodCriterion::Budget) {
-        g.primary = budget_gate(ray_budget(false, opt), ray_size_share(false, opt));
+        g.primary = budget_gate(ray_budget(false, opt), ray_size_share(false, opt),
+                                opt.colour_pixel_response);
         g.secondary = visibility_kind(opt)
                           ? visibility_gate(ray_budget(true, opt), flip_weight(opt))
-                          : budget_gate(ray_budget(true, opt), ray_size_share(true, opt));
+                          : budget_gate(ray_budget(true, opt), ray_size_share(true, opt),
+                                        opt.colour_pixel_response);
     }
     return g;
 }
@@ -124,7 +129,7 @@ inline bool lod_stop(const Node &nd, const Ray &ray, float t2, const TraceOption
                                      flip_weight(opt));
         }
         return budget_allows(nd, ray.footprint(t2), ray_budget(secondary, opt),
-                             ray_size_share(secondary, opt));
+                             ray_size_share(secondary, opt), opt.colour_pixel_response);
     }
     const float fp = opt.lod_pixels * ray.footprint(t2);
     if (opt.lod_criterion == LodCriterion::Size) return size <= fp;
