@@ -21,7 +21,10 @@ BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 #: Modules the render command has no use for: heavy imports a run must not pay for.
 NOT_FOR_RENDER = ("open3d", "scipy", "matplotlib", "dask", "distributed", "laspy", "trimesh",
                   "pyvista", "pointviz.path", "pointviz.viewer", "pointviz.comparison",
-                  "pointviz.commands.path", "pointviz.commands.view", "pointviz.commands.compare")
+                  "pointviz.commands.path", "pointviz.commands.view", "pointviz.commands.compare",
+                  # the denoiser's library is called through ctypes: not pyoidn's cffi wrapper;
+                  # scene keys (OpenSSL's hashes) are not computed
+                  "pyoidn", "cffi", "hashlib")
 
 
 @pytest.fixture(scope="module")
