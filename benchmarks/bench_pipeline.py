@@ -71,6 +71,8 @@ out = sys.argv.pop(1)  # the CLI sees its own arguments, as when run as a progra
 blas = getattr(pointviz.cli, "SINGLE_THREADED_BLAS", ())
 if getattr(pointviz.cli, "_named_command", lambda a: None)(sys.argv[1:]) in blas:
     pointviz.cli._single_threaded_blas()
+if pointviz.cli._named_command(sys.argv[1:]) in getattr(pointviz.cli, "REUSE_FREED_MEMORY", ()):
+    pointviz.cli._reuse_freed_memory()  # (main() does it again: the same settings)
 import pointviz, pointviz.io, pointviz.rendering, pointviz.surfels, pointviz.camera
 import pointviz.denoise, pointviz.commands.common
 from pointviz.cloud import PointCloud
