@@ -157,16 +157,13 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
         finally:
             if radii_done is not None:
                 radii_done()
-    if fitting is not None:
-        try:  # (the build needs the radii)
-            if radii_done is not None:
-                radii_done()
-            RenderSettings(**render_kwargs(args))  # bad options fail before the tree
-            scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto",
-                                      kw)
-            scene.bounds()  # the frame's bounds and ground level, computed once, now
-        finally:
-            camera = fitting()
+    if fitting is not None:  # (an error here leaves the camera's daemon thread to end alone)
+        if radii_done is not None:
+            radii_done()  # the build needs them
+        RenderSettings(**render_kwargs(args))  # bad options fail before the tree
+        scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto", kw)
+        scene.bounds()  # the frame's bounds and ground level, computed once, now
+        camera = fitting()
     camera = _sized(camera, args)
     if prepare and fitting is None:
         RenderSettings(**render_kwargs(args))  # bad options fail before the trees
