@@ -71,6 +71,8 @@ out = sys.argv.pop(1)  # the CLI sees its own arguments, as when run as a progra
 blas = getattr(pointviz.cli, "SINGLE_THREADED_BLAS", ())
 if getattr(pointviz.cli, "_named_command", lambda a: None)(sys.argv[1:]) in blas:
     pointviz.cli._single_threaded_blas()
+if pointviz.cli._named_command(sys.argv[1:]) in getattr(pointviz.cli, "REUSE_FREED_MEMORY", ()):
+    pointviz.cli._reuse_freed_memory()  # (main() does it again: the same settings)
 import pointviz, pointviz.io, pointviz.rendering, pointviz.surfels, pointviz.camera
 import pointviz.denoise, pointviz.commands.common
 from pointviz.cloud import PointCloud
@@ -97,6 +99,11 @@ def radii_in_background(*a, **kw):
     return None if wait is None else timed("radii_wait", wait)
 if in_background is not None:  # (an older tree, for A/B runs, estimates them in load())
     pointviz.commands.common._radii_in_background = radii_in_background
+camera_beside = getattr(pointviz.commands.common, "_camera_in_background", None)
+def camera_in_background(*a, **kw):
+    return timed("camera_wait", camera_beside(*a, **kw))
+if camera_beside is not None:  # (older trees fit the camera on the main thread)
+    pointviz.commands.common._camera_in_background = camera_in_background
 
 for name in ("normals", "radii"):  # first access estimates them
     prop = getattr(PointCloud, name)
@@ -117,6 +124,8 @@ def render_and_record(*a, **kw):
     return frame
 pointviz.rendering.render = timed("render", render_and_record)
 pointviz.rendering.Frame.save = timed("write", pointviz.rendering.Frame.save)
+import pointviz.scene
+pointviz.scene.Scene.bounds = timed("bounds", pointviz.scene.Scene.bounds)
 
 def dump(code):
     t["exit_code"] = code
@@ -133,7 +142,7 @@ dump(pointviz.cli.main())
 """
 #: The stages of TIMED_CLI, in pipeline order; together with "other" they make up the wall time.
 STAGES = ("imports", "load", "fit", "normals", "radii", "camera_fit", "radii_wait", "build_total",
-          "render", "denoise", "write")
+          "bounds", "camera_wait", "render", "denoise", "write")
 
 
 def median(values):
@@ -240,7 +249,7 @@ def start_to_png(conf: Path, out_dir: Path, repeat: int, extra: list[str]) -> di
         t = json.loads(timings.read_text())
         t["wall"] = wall
         runs.append(t)
-    keys = ["wall", *STAGES, "radii_beside", "build", "frame"]
+    keys = ["wall", *STAGES, "radii_beside", "camera_fit_beside", "build", "frame"]
     med = {k: median([r.get(k, 0.0) for r in runs]) for k in keys}
     med["openblas_threads"] = runs[0].get("openblas_threads")
     med["anchor"] = median([r.get("build", 0.0) + r.get("frame", 0.0) for r in runs])
@@ -252,7 +261,8 @@ def print_start_to_png(label: str, med: dict) -> None:
     # the CLI builds the SurfelScene inside render() (Scene.to_core): render's own time is the
     # core's frame and the scene setup around it
     med = {k: med.get(k, 0.0)
-           for k in ("wall", "anchor", "ratio", "build", "frame", "radii_beside", *STAGES)}
+           for k in ("wall", "anchor", "ratio", "build", "frame", "radii_beside",
+                     "camera_fit_beside", *STAGES)}
     other = med["wall"] - sum(med[k] for k in STAGES)
     print(f"\n{label}: start to PNG {med['wall']:.2f} s = {med['ratio']:.1f}x the core's tree "
           f"build + frame ({med['anchor']:.2f} s; target <= {TARGET_START_TO_PNG:g}x, "
@@ -264,12 +274,15 @@ def print_start_to_png(label: str, med: dict) -> None:
             ("waiting for those radii", med["radii_wait"]),
             ("SurfelScene (tree build)", med["build_total"]),
             ("  of which the core's build", med["build"]),
+            ("  camera fit beside it (not summed)", med["camera_fit_beside"]),
+            ("scene bounds and ground level", med["bounds"]),
+            ("waiting for that camera", med["camera_wait"]),
             ("frame (the core)", med["frame"]),
             ("render() setup around the frame", med["render"] - med["frame"]),
             ("denoise", med["denoise"]),
             ("write PNG", med["write"]), ("other (interpreter, CLI, exit)", other)]
     for name, secs in rows:
-        print(f"  {name:32s} {secs:7.3f} s  {100 * secs / med['wall']:5.1f} %")
+        print(f"  {name:36s} {secs:7.3f} s  {100 * secs / med['wall']:5.1f} %")
     rest = med["wall"] - med["normals"] - med["radii"] - med["radii_wait"] - med["fit"]
     budget = TARGET_START_TO_PNG * med["anchor"] - rest
     print(f"  everything but the fit, normals and radii: {rest:.2f} s = "

@@ -41,16 +41,85 @@ DENOISE_QUALITY = "fast"
 DENOISE_CLEAN_AUX = False
 
 
+#: Open Image Denoise's C API values used here (oidn.h).
+OIDN_DEVICE_TYPE_CPU = 1
+OIDN_FORMAT_FLOAT3 = 3
+OIDN_QUALITIES = {"fast": 4, "balanced": 5, "high": 6}
+
+_LIBRARIES: dict = {}  # the C API loaded from each folder: a library is loaded once a process
+_LIBRARIES_LOCK = threading.Lock()
+
+
 def check_available():
-    """Import pyoidn, or raise MissingDependencyError naming the extra to install."""
+    """The Open Image Denoise library that ``pyoidn`` installs, loaded (once), or raise
+    MissingDependencyError naming the extra to install.
+
+    The library is called through ctypes, not through pyoidn's own wrapper: importing pyoidn
+    parses its C declarations with cffi, ~0.03 s of pure Python under Python's lock, which the
+    render command would pay beside its reading of the input (the denoiser is set up on a
+    worker thread meanwhile). The calls are the ones pyoidn makes."""
+    folder = _library_folder()
+    with _LIBRARIES_LOCK:
+        if folder not in _LIBRARIES:
+            _LIBRARIES[folder] = _load_library(folder)
+        return _LIBRARIES[folder]
+
+
+def _missing() -> MissingDependencyError:
+    return MissingDependencyError(
+        f"denoise=True needs Intel Open Image Denoise ({DENOISE_MODULE}); install it with: "
+        f"pip install 'pointviz[{DENOISE_EXTRA}]'  (or render with denoise=False / "
+        f"--no-denoise)")
+
+
+def _library_folder() -> str:
+    """The folder of pyoidn's bundled libraries (found without importing pyoidn)."""
+    import importlib.util
+    import os
+
     try:
-        import pyoidn
-    except ImportError:
+        spec = importlib.util.find_spec(DENOISE_MODULE)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is None or not spec.submodule_search_locations:
+        raise _missing()
+    return os.path.join(list(spec.submodule_search_locations)[0], "oidn",
+                        "bin" if os.name == "nt" else "lib")
+
+
+def _load_library(folder: str):
+    """ctypes handle of the ``OpenImageDenoise`` library in ``folder`` (where pyoidn itself
+    loads it from), its functions typed."""
+    import ctypes
+    import os
+    import sys
+
+    windows = os.name == "nt"
+    suffix = ".dll" if windows else ".dylib" if sys.platform == "darwin" else ".so"
+    prefix = "" if windows else "lib"
+    names = ["OpenImageDenoise_device_cpu", "OpenImageDenoise"] if windows else ["OpenImageDenoise"]
+    try:
+        for name in names:  # (Windows: the device library first, as pyoidn loads them)
+            lib = ctypes.CDLL(os.path.join(folder, prefix + name + suffix))
+    except OSError as exc:
         raise MissingDependencyError(
-            f"denoise=True needs Intel Open Image Denoise ({DENOISE_MODULE}); install it with: "
-            f"pip install 'pointviz[{DENOISE_EXTRA}]'  (or render with denoise=False / "
-            f"--no-denoise)") from None
-    return pyoidn
+            f"{_missing()} ({DENOISE_MODULE} is installed but its library did not load: "
+            f"{exc})") from None
+    p, s, i = ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int
+    size = ctypes.c_size_t
+    for name, args, res in (
+            ("oidnNewDevice", [i], p), ("oidnSetDeviceInt", [p, s, i], None),
+            ("oidnCommitDevice", [p], None), ("oidnReleaseDevice", [p], None),
+            ("oidnGetDeviceError", [p, ctypes.POINTER(s)], i),
+            ("oidnNewFilter", [p, s], p), ("oidnReleaseFilter", [p], None),
+            ("oidnSetFilterBool", [p, s, ctypes.c_bool], None),
+            ("oidnSetFilterInt", [p, s, i], None), ("oidnSetFilterFloat", [p, s, ctypes.c_float], None),
+            ("oidnSetSharedFilterImage", [p, s, p, i, size, size, size, size, size], None),
+            ("oidnUnsetFilterImage", [p, s], None),
+            ("oidnCommitFilter", [p], None), ("oidnExecuteFilter", [p], None)):
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = args, res
+    return lib
 
 
 def _check_quality(quality) -> str:
@@ -82,9 +151,9 @@ def _check_buffers(color, albedo, normal):
     return np.maximum(color, np.float32(0.0)), guides
 
 
-def _release(flt, device):
-    flt.release()
-    device.release()
+def _release(lib, flt, device):
+    lib.oidnReleaseFilter(flt)
+    lib.oidnReleaseDevice(device)
 
 
 class Denoiser:
@@ -104,35 +173,36 @@ class Denoiser:
 
     def __init__(self, quality: str = DENOISE_QUALITY, threads: int | None = None,
                  clean_aux: bool = DENOISE_CLEAN_AUX):
-        pyoidn = check_available()
-        from pyoidn.device import Device
-        from pyoidn.filter import Filter
-
+        lib = self._lib = check_available()
         self.quality = _check_quality(quality)
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 0):
             raise InputError(f"threads: expected an int >= 0 or None, got {threads!r}")
         self.threads = threads or None
         self.clean_aux = bool(clean_aux)
-        self._format = pyoidn.OIDN_FORMAT_FLOAT3
         self._lock = threading.Lock()
-        self._device = Device()
+        self._device = lib.oidnNewDevice(OIDN_DEVICE_TYPE_CPU)
+        if not self._device:
+            raise RuntimeError("Open Image Denoise device creation failed")
         if self.threads:
-            self._device.set_int("numThreads", self.threads)
-        self._device.commit()
+            lib.oidnSetDeviceInt(self._device, b"numThreads", self.threads)
+        lib.oidnCommitDevice(self._device)
         self._check("device creation")
-        self._filter = Filter(self._device, "RT")
+        self._filter = lib.oidnNewFilter(self._device, b"RT")
         self._check("filter creation")
-        self._filter.set_bool("hdr", True)
-        self._filter.set_bool("cleanAux", self.clean_aux)
-        self._filter.set_quality({"high": pyoidn.OIDN_QUALITY_HIGH, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
-                                  "fast": pyoidn.OIDN_QUALITY_FAST}[self.quality])
+        lib.oidnSetFilterBool(self._filter, b"hdr", True)
+        lib.oidnSetFilterBool(self._filter, b"cleanAux", self.clean_aux)
+        lib.oidnSetFilterInt(self._filter, b"quality", OIDN_QUALITIES[self.quality])
         self._bound: tuple = ()
-        self._finalizer = weakref.finalize(self, _release, self._filter, self._device)
+        self._finalizer = weakref.finalize(self, _release, lib, self._filter, self._device)
 
     def _check(self, what: str) -> None:
-        err = self._device.get_error()
-        if err:
-            raise RuntimeError(f"Open Image Denoise {what} failed: {err}")
+        import ctypes
+
+        message = ctypes.c_char_p()
+        self._lib.oidnGetDeviceError(self._device, ctypes.byref(message))
+        if message.value:  # (as pyoidn: an error is its message)
+            raise RuntimeError(f"Open Image Denoise {what} failed: "
+                               f"{message.value.decode(errors='replace')}")
 
     def __call__(self, color: np.ndarray, albedo: np.ndarray | None = None,
                  normal: np.ndarray | None = None, exposure: float | None = None) -> np.ndarray:
@@ -162,17 +232,21 @@ class Denoiser:
         color, guides = _check_buffers(color, albedo, normal)
         out = np.empty_like(color)
         images = {"color": color, **guides, "output": out}
+        lib = self._lib
         with self._lock:
             flt = self._filter
             for name in set(self._bound) - set(images):
-                flt.unset_image(name)
-            for name, img in images.items():
-                flt.set_image(name, img, self._format)
+                lib.oidnUnsetFilterImage(flt, name.encode())
+            for name, img in images.items():  # shared host images, tightly packed
+                lib.oidnSetSharedFilterImage(flt, name.encode(), img.ctypes.data,
+                                             OIDN_FORMAT_FLOAT3, img.shape[1], img.shape[0],
+                                             0, 0, 0)
             self._bound = tuple(images)
-            flt.set_float("inputScale", float(exposure) if exposure is not None else math.nan)
-            flt.commit()
+            lib.oidnSetFilterFloat(flt, b"inputScale",
+                                   float(exposure) if exposure is not None else math.nan)
+            lib.oidnCommitFilter(flt)
             self._check("filter setup")
-            flt.execute()
+            lib.oidnExecuteFilter(flt)
             self._check("filtering")
         return np.maximum(out, np.float32(0.0), out=out)
 
@@ -195,8 +269,9 @@ _SHARED_LOCK = threading.Lock()
 def shared_denoiser(quality: str = DENOISE_QUALITY, threads: int | None = None) -> Denoiser:
     """The process's denoiser for (quality, threads), created on first use.
 
-    The one piece of process state of this module: what it caches is the network's weights
-    loaded into a device, which every frame of a run would otherwise load again.
+    The module's process state, with the loaded library (:func:`check_available`): what it
+    caches is the network's weights loaded into a device, which every frame of a run would
+    otherwise load again.
     """
     key = (_check_quality(quality), threads or None)
     with _SHARED_LOCK:
@@ -210,10 +285,10 @@ def prepare_in_background(quality: str = DENOISE_QUALITY,
                           threads: int | None = None) -> threading.Thread:
     """Create the shared denoiser for (quality, threads) (:func:`shared_denoiser`) on a daemon
     thread while the caller does other work: the command line starts it before it reads its
-    input, so that importing ``pyoidn`` and creating the device (which runs without Python's
-    lock) overlap the reading instead of delaying the frame. Errors are left to the first real
-    call, which raises them where they belong (a missing ``pyoidn`` included). Returns the
-    started thread."""
+    input, so that loading Open Image Denoise and creating the device (which runs without
+    Python's lock) overlap the reading instead of delaying the frame. Errors are left to the
+    first real call, which raises them where they belong (a missing ``pyoidn`` included).
+    Returns the started thread."""
     def work():
         try:
             shared_denoiser(quality, threads)

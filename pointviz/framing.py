@@ -74,17 +74,28 @@ def bounding_sphere(points: Any, name: str = "points") -> tuple[np.ndarray, floa
     radius : float
         ``max |p - centre|``; 0 if all points coincide.
     """
+    return _sphere(*_check_points(points, name))
+
+
+def _check_points(points: Any, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``points`` as an (n, 3) numeric array (n >= 1) of finite values, and its bounds (lo, hi,
+    float64); InputError naming ``name`` otherwise."""
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in "iuf":
         raise InputError(f"{name} must be an (n, 3) numeric array, got shape {pts.shape}")
     if pts.shape[0] == 0:
         raise InputError(f"{name} is empty")
-    pts = pts.astype(np.float64, copy=False)
     lo, hi = _bounds(pts)
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise InputError(f"{name} contains NaN or inf")
+    return pts, lo, hi
+
+
+def _sphere(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`bounding_sphere` of checked points with bounds (lo, hi)."""
     centre = 0.5 * (lo + hi)
-    # block by block: the whole cloud's offsets at once would be 56 bytes per point
+    # block by block: the whole cloud's offsets at once would be 56 bytes per point (float64
+    # offsets whatever the points' type: the same numbers as converting the points first)
     r2 = max(float(np.max(np.einsum("ij,ij->i", d, d)))
              for d in (pts[b:b + SPHERE_BLOCK] - centre for b in range(0, len(pts), SPHERE_BLOCK)))
     return centre, float(np.sqrt(r2))
@@ -191,7 +202,13 @@ def shape_kind(points: Any, up: Any = DEFAULT_UP) -> str:
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4:
         return "object"
     pts = fit_sample(pts).astype(np.float64, copy=False)  # no whole-cloud float64 copy
-    u, major, minor = _horizontal_axes(pts, check_vec3(up, "up"))
+    return _shape_kind_of(pts, _horizontal_axes(pts, check_vec3(up, "up")))
+
+
+def _shape_kind_of(pts: np.ndarray, axes: tuple[np.ndarray, np.ndarray, np.ndarray]) -> str:
+    """:func:`shape_kind` of a float64 sample (at least 4 rows) whose :func:`_horizontal_axes`
+    are ``axes``."""
+    u, major, minor = axes
     q = (TERRAIN_QUANTILE, 1.0 - TERRAIN_QUANTILE)
     height = np.diff(np.quantile(pts @ u, q))[0]
     width = min(np.diff(np.quantile(pts @ major, q))[0], np.diff(np.quantile(pts @ minor, q))[0])
@@ -203,12 +220,20 @@ def _auto_directions(pts: np.ndarray, up: np.ndarray) -> list[np.ndarray]:
     for an object (one three-quarter view); for a terrain tile, views across its short axis and
     along its long axis at each of TERRAIN_ELEVATIONS_DEG (the one that fills the frame most is
     kept)."""
-    u, major, minor = _horizontal_axes(pts, up)
+    axes = _horizontal_axes(pts, up)
+    u, major, minor = axes
     # a deterministic side: the one facing the default view (+Z for +Y up)
     front = _rotate_y_to(-np.asarray(DEFAULT_FIT_DIRECTION, dtype=np.float64), u)
     if minor @ front < 0:
         minor, major = -minor, -major
-    if shape_kind(pts, u) == "terrain":
+    # shape_kind(pts, u): its axes are these unless normalising u again moves it by a rounding
+    if len(pts) < 4:
+        kind = "object"
+    elif np.array_equal(u / np.linalg.norm(u), u):
+        kind = _shape_kind_of(pts, axes)
+    else:
+        kind = shape_kind(pts, u)
+    if kind == "terrain":
         # the principal axes, and the data's own horizontal axes (LiDAR tiles are cut along
         # their map grid, which the principal axes of an irregular tile miss)
         sides = [minor, major]
@@ -279,10 +304,13 @@ class TailQuantiles:
         diff = b - a
         return b - diff * (1.0 - t) if t >= 0.5 else a + diff * t
 
-    def _lowest(self, v: np.ndarray, sel: np.ndarray | None, ranks: tuple[int, int], keep: int):
-        """Values of ranks ``ranks`` among v[sel] (all of v if sel is None), and the indices
-        into v of its ``keep`` lowest."""
+    def _lowest(self, v: np.ndarray, sel: np.ndarray | None, ranks: tuple[int, int], keep: int,
+                negate: bool = False):
+        """Values of ranks ``ranks`` among v[sel] (all of v if sel is None), negated first with
+        ``negate``, and the indices into v of its ``keep`` lowest."""
         vals = v if sel is None else v[sel]
+        if negate:  # (only the selected values: the others are never looked at)
+            vals = -vals
         self.searched += len(vals)
         order = np.argpartition(vals, sorted({*ranks, keep - 1}))
         kept = order[:keep] if sel is None else sel[order[:keep]]
@@ -300,8 +328,8 @@ class TailQuantiles:
             sel_high = np.flatnonzero(v >= v[self.high].min())
         a0, b0, self.low = self._lowest(v, sel_low, (i0, i0 + 1), self.keep_low)
         # the highest values, as the lowest of their negatives: v's rank r is rank n-1-r there
-        neg = -v
-        b1, a1, self.high = self._lowest(neg, sel_high, (n - 2 - i1, n - 1 - i1), self.keep_high)
+        b1, a1, self.high = self._lowest(v, sel_high, (n - 2 - i1, n - 1 - i1), self.keep_high,
+                                         negate=True)
         a1, b1 = -a1, -b1
         return self._lerp(a0, b0, self.gamma[0]), self._lerp(a1, b1, self.gamma[1])
 
@@ -324,13 +352,17 @@ def _fill_frame(camera: CameraValue, pts: np.ndarray, outliers: float,
     # the points along the camera's axes once: each eye below only shifts them (155 calls on
     # a FIT_SAMPLE-point sample for a default fit)
     along_f, along_r, along_u = pts @ f, pts @ r, pts @ u
+    # every depth along_f - e is > 0 exactly when the nearest point's is (for finite doubles
+    # a - b > 0 iff a > b): one comparison instead of one per point
+    nearest = along_f.min()
     if q is not None:
         tails_x, tails_y = TailQuantiles(len(pts), q[0]), TailQuantiles(len(pts), q[0])
 
     def bounds(eye):
-        depth = along_f - eye @ f
-        if not np.all(depth > 0):
+        ef = eye @ f
+        if not nearest > ef:
             return None
+        depth = along_f - ef
         x, y = (along_r - eye @ r) / depth, (along_u - eye @ u) / depth
         if q is None:
             return x.min(), x.max(), y.min(), y.max()
@@ -378,17 +410,19 @@ def fit_camera(cls: type, cloud: Any, direction: Any, fov_deg: float, width: int
     :meth:`pointviz.camera.Camera.fit`, whose docstring states the rules; the arguments are
     the same."""
     points, cloud_up = _cloud_points_and_up(cloud)
-    centre, radius = bounding_sphere(points, "cloud.points")
+    points, lo, hi = _check_points(points, "cloud.points")
     outliers = check_real(outliers, "outliers")
     if not 0.0 <= outliers <= 0.1:
         raise InputError(f"outliers must be in [0, 0.1], got {outliers}")
     margin = check_real(margin, "margin")
     if margin <= 0.0:
         raise InputError(f"margin must be > 0, got {margin}")
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) < FIT_ROBUST_MIN_POINTS:
+    if len(points) < FIT_ROBUST_MIN_POINTS:
         outliers = 0.0
-    pts = fit_sample(pts)
+    if outliers == 0.0:  # (else centre and radius come from the sample's quantiles below)
+        centre, radius = _sphere(points, lo, hi)
+    # the sample before any conversion: a float32 cloud is not copied whole to float64
+    pts = fit_sample(points).astype(np.float64, copy=False)
     if outliers > 0.0:
         lo = np.quantile(pts, outliers / 2, axis=0)
         hi = np.quantile(pts, 1.0 - outliers / 2, axis=0)

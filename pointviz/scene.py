@@ -7,7 +7,6 @@ scene with a mesh backend in place of the surfels renders with identical shading
 
 from __future__ import annotations
 
-import hashlib
 import pickle
 import threading
 from collections.abc import Mapping
@@ -89,6 +88,8 @@ def _hash_array(h, arr) -> None:
 def _callback_digest(geometry) -> str:
     """A content digest of a geometry that is not a cloud: its pickle when it has one (meshes
     do), else its identity (then a resumed path render cannot tell it is the same geometry)."""
+    import hashlib  # (here: it loads OpenSSL, which a render without keys does not need)
+
     try:
         return "callback:" + hashlib.sha256(pickle.dumps(geometry)).hexdigest()
     except Exception:  # noqa: BLE001 - unpicklable objects fall back to identity
@@ -327,6 +328,8 @@ class Scene:
         once per scene (estimating missing normals and radii)."""
         key = self._memo.get("key")
         if key is None:
+            import hashlib  # (here: it loads OpenSSL, which a render without keys does not need)
+
             h = hashlib.sha256()
             for obj, (src, options) in zip(self.objects, self._sources()):
                 if options is None:

@@ -60,6 +60,9 @@ def test_start_to_png_stages_add_up_to_the_wall_time(tmp_path):
     # and the wait for it find them there
     assert med["radii_beside"] < 0.01 * med["fit"] and med["radii"] < 0.01 * med["fit"]
     assert med["render"] >= med["frame"]
+    # the handed-over cloud's camera is fitted beside its tree's build, the wait for it timed
+    assert med["camera_fit_beside"] > 0.0 and med["camera_fit"] == 0.0
+    assert med["bounds"] > 0.0
 
 
 @pytest.mark.slow

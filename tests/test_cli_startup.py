@@ -21,7 +21,10 @@ BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 #: Modules the render command has no use for: heavy imports a run must not pay for.
 NOT_FOR_RENDER = ("open3d", "scipy", "matplotlib", "dask", "distributed", "laspy", "trimesh",
                   "pyvista", "pointviz.path", "pointviz.viewer", "pointviz.comparison",
-                  "pointviz.commands.path", "pointviz.commands.view", "pointviz.commands.compare")
+                  "pointviz.commands.path", "pointviz.commands.view", "pointviz.commands.compare",
+                  # the denoiser's library is called through ctypes: not pyoidn's cffi wrapper;
+                  # scene keys (OpenSSL's hashes) are not computed
+                  "pyoidn", "cffi", "hashlib")
 
 
 @pytest.fixture(scope="module")
@@ -152,3 +155,31 @@ def test_render_run_as_a_program_uses_one_blas_thread_unless_told(raw_scans, tmp
                               env=env if given is None else {**env, "OPENBLAS_NUM_THREADS": given})
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout.splitlines()[-1].split() == [seen, "True"]
+
+
+def test_render_run_as_a_program_keeps_the_memory_it_frees(raw_scans, tmp_path):
+    """Run as a program, render sets glibc's allocator to reuse freed memory (mallopt accepts
+    both settings here, on Linux); called as a function, main() leaves the process alone."""
+    code = ("import os, sys\n"
+            "import pointviz.cli as cli\n"
+            "calls = []\n"
+            "set_it = cli._reuse_freed_memory\n"
+            "cli._reuse_freed_memory = lambda: calls.append(set_it()) or calls[-1]\n"
+            "def end(status):\n"
+            "    print(calls)\n"
+            "    sys.stdout.flush()\n"
+            "    os._exit(status)\n"
+            "cli._exit_now = end\n"
+            "sys.argv = ['pointviz', *sys.argv[1:]]\n"
+            "if sys.argv[1] == 'render':\n"
+            "    cli.main()\n"
+            "else:\n"
+            "    cli.main(['render', *sys.argv[2:]])\n"
+            "    end(0)\n")
+    for command, seen in (("render", [sys.platform.startswith("linux")]), ("as-function", [])):
+        argv = [command, raw_scans, "-o", tmp_path / f"{command}.png", "--width", "24",
+                "--spp", "1", "--no-denoise"]
+        proc = subprocess.run([sys.executable, "-c", code, *map(str, argv)],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.splitlines()[-1] == str(seen)

@@ -29,13 +29,42 @@ inline std::vector<pointviz::Table> read_tables_released(
     return out;
 }
 
-/// (rows, columns) float64 numpy array that takes over the table's buffer (no copy).
-inline nb::object table_array(pointviz::Table &t, size_t ncols) {
-    auto *buf = new pointviz::TableValues(std::move(t.values));
+/// As read_tables_released, every table's rows in `joined`.
+inline std::vector<pointviz::Table> read_tables_joined_released(
+        const std::vector<pointviz::TableSpec> &specs, pointviz::TableValues &joined, int threads,
+        pointviz::Progress &progress) {
+    std::vector<pointviz::Table> out;
+    nb::gil_scoped_release release;
+    pointviz::read_tables_joined(specs, joined, out, threads, progress);
+    return out;
+}
+
+/// (rows, columns) float64 numpy array that takes over a buffer of values (no copy).
+inline nb::object values_array(pointviz::TableValues &values, size_t rows, size_t ncols) {
+    auto *buf = new pointviz::TableValues(std::move(values));
     nb::capsule owner(buf, [](void *p) noexcept { delete static_cast<pointviz::TableValues *>(p); });
-    size_t shape[2] = {size_t(t.rows), ncols};
+    size_t shape[2] = {rows, ncols};
     return nb::cast(nb::ndarray<nb::numpy, double>(buf->empty() ? nullptr : buf->data(), 2, shape,
                                                    owner));
+}
+
+/// One table's results but its values: lines_after, the positions' lo, hi, sum and finite, and
+/// grid ((rows, 2) int32) when it has one.
+inline nb::dict table_dict(const pointviz::Table &t) {
+    const pointviz::PositionStats &ps = t.positions;
+    nb::dict d;
+    d["lines_after"] = t.lines_after;
+    if (!t.grid.empty()) {
+        size_t shape[2] = {size_t(t.rows), 2};
+        d["grid"] = nb::cast(nb::ndarray<nb::numpy, int32_t>(const_cast<int32_t *>(t.grid.data()),
+                                                              2, shape, nb::handle()),
+                             nb::rv_policy::copy);
+    }
+    d["lo"] = ps.lo;
+    d["hi"] = ps.hi;
+    d["sum"] = ps.sum;
+    d["finite"] = ps.finite;
+    return d;
 }
 
 inline void bind_readers(nb::module_ &m) {
@@ -77,20 +106,9 @@ inline void bind_readers(nb::module_ &m) {
         std::vector<pointviz::Table> tables = read_tables_released(specs, threads, progress);
         nb::list out;
         for (size_t i = 0; i < tables.size(); ++i) {
-            const pointviz::PositionStats &ps = tables[i].positions;
-            nb::dict d;
-            d["values"] = table_array(tables[i], specs[i].wanted.size());
-            d["lines_after"] = tables[i].lines_after;
-            if (!tables[i].grid.empty()) {
-                size_t shape[2] = {size_t(tables[i].rows), 2};
-                d["grid"] = nb::cast(nb::ndarray<nb::numpy, int32_t>(tables[i].grid.data(), 2,
-                                                                      shape, nb::handle()),
-                                     nb::rv_policy::copy);
-            }
-            d["lo"] = ps.lo;
-            d["hi"] = ps.hi;
-            d["sum"] = ps.sum;
-            d["finite"] = ps.finite;
+            nb::dict d = table_dict(tables[i]);
+            d["values"] = values_array(tables[i].values, size_t(tables[i].rows),
+                                       specs[i].wanted.size());
             out.append(d);
         }
         return out;
@@ -98,6 +116,20 @@ inline void bind_readers(nb::module_ &m) {
     "Read the numeric rows each TableSpec describes (several files in parallel). Returns one dict "
     "per spec: values ((rows, len(wanted)) float64), lines_after, and lo, hi, sum, finite of the "
     "positions as read (before the affine map), and grid ((rows, 2) int32) with grid_cells.");
+    m.def("read_tables_joined", [](const std::vector<TableSpec> &specs, int threads) {
+        pointviz::Progress progress;
+        pointviz::TableValues joined;
+        std::vector<pointviz::Table> tables =
+            read_tables_joined_released(specs, joined, threads, progress);
+        const size_t ncols = specs.empty() ? 0 : specs[0].wanted.size();
+        const size_t rows = ncols == 0 ? 0 : joined.size() / ncols;
+        nb::list out;
+        for (const pointviz::Table &t : tables) out.append(table_dict(t));
+        return nb::make_tuple(values_array(joined, rows, ncols), out);
+    }, "specs"_a, "threads"_a = 0,
+    "As read_tables, every spec's rows in one array, one spec's after the other's (each spec "
+    "needs a row count, all the same wanted columns). Returns (values, dicts): values "
+    "((total rows, len(wanted)) float64) and per spec the dict of read_tables without values.");
 }
 
 }  // namespace pointviz_bindings

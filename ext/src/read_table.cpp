@@ -218,6 +218,14 @@ void parse_grid_line(const char *b, const char *e, uint64_t c, const TableSpec &
     }
 }
 
+/// Where `count` values of a table's rows go: its `block` of a joined buffer (sized for the
+/// spec's row count, which the caller has checked the rows are), else its own `values`.
+double *row_storage(Table &out, size_t count) {
+    if (out.block != nullptr) return out.block;
+    out.values.resize(count);
+    return out.values.data();
+}
+
 void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int threads,
                 Progress &progress, const std::vector<int> &slot) {
     const char *data = buf.data();
@@ -262,7 +270,7 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
     }
     const size_t nw = spec.wanted.size();
     out.rows = nrows;
-    out.values.resize(size_t(nrows) * nw);
+    double *values = row_storage(out, size_t(nrows) * nw);
     FirstError first;
     std::atomic<uint64_t> advanced{0};
     std::vector<PositionStats> parts((size_t(nrows) + kRowGrain - 1) / kRowGrain);
@@ -271,8 +279,8 @@ void read_ascii(const TableSpec &spec, const MappedBytes &buf, Table &out, int t
             progress.check();
             for (size_t r = b; r < e; ++r)
                 parse_row(data + bounds[2 * r], data + bounds[2 * r + 1], spec, slot,
-                          out.values.data() + r * nw, r);
-            place_rows(spec, out.values.data(), nw, b, e, parts[b / kRowGrain]);
+                          values + r * nw, r);
+            place_rows(spec, values, nw, b, e, parts[b / kRowGrain]);
             const uint64_t bytes = bounds[2 * (e - 1) + 1] - bounds[2 * b];
             advanced.fetch_add(bytes, std::memory_order_relaxed);
             progress.advance(bytes);
@@ -329,7 +337,7 @@ void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int 
     const bool swap = spec.encoding == Encoding::BinaryBig;
     const size_t nw = spec.wanted.size();
     out.rows = nrows;
-    out.values.resize(size_t(nrows) * nw);
+    double *values = row_storage(out, size_t(nrows) * nw);
     FirstError first;
     const size_t grain = kRowGrain * 8;
     std::vector<PositionStats> parts((size_t(nrows) + grain - 1) / grain);
@@ -338,13 +346,13 @@ void read_binary(const TableSpec &spec, const MappedBytes &buf, Table &out, int 
             progress.check();
             for (size_t r = b; r < e; ++r) {
                 const char *row = buf.data() + r * row_bytes;
-                double *dst = out.values.data() + r * nw;
+                double *dst = values + r * nw;
                 for (size_t k = 0; k < nw; ++k) {
                     uint32_t c = spec.wanted[k];
                     dst[k] = decode_scalar(row + col_offset[c], spec.columns[c], swap);
                 }
             }
-            place_rows(spec, out.values.data(), nw, b, e, parts[b / grain]);
+            place_rows(spec, values, nw, b, e, parts[b / grain]);
             progress.advance((e - b) * row_bytes);
         } catch (...) {
             first.record(b);
@@ -384,9 +392,24 @@ void read_one(const TableSpec &spec, Table &out, int threads, Progress &progress
 
 }  // namespace
 
-void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
-                 Progress &progress) {
-    out.assign(specs.size(), Table{});
+namespace {
+
+/// The most rows the spec's file can hold from its offset: one byte each (ASCII), or the
+/// columns' bytes (binary). 0 for a file that cannot be read (its read then says why).
+uint64_t max_rows(const TableSpec &spec) {
+    struct stat st;
+    if (::stat(spec.path.c_str(), &st) != 0 || uint64_t(st.st_size) < spec.offset) return 0;
+    uint64_t row_bytes = 1;
+    if (spec.encoding != Encoding::Ascii) {
+        row_bytes = 0;
+        for (Scalar c : spec.columns) row_bytes += scalar_size(c);
+    }
+    return (uint64_t(st.st_size) - spec.offset) / std::max<uint64_t>(row_bytes, 1);
+}
+
+/// Reads every spec into its table of `out` (already sized, blocks set where joined).
+void read_each(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+               Progress &progress) {
     if (specs.size() == 1) {
         read_one(specs[0], out[0], threads, progress);
         return;
@@ -403,6 +426,40 @@ void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, i
         }
     }, &progress.cancel);
     first.rethrow(progress);
+}
+
+}  // namespace
+
+void read_tables(const std::vector<TableSpec> &specs, std::vector<Table> &out, int threads,
+                 Progress &progress) {
+    out.assign(specs.size(), Table{});
+    read_each(specs, out, threads, progress);
+}
+
+void read_tables_joined(const std::vector<TableSpec> &specs, TableValues &joined,
+                        std::vector<Table> &out, int threads, Progress &progress) {
+    const size_t nw = specs.empty() ? 0 : specs[0].wanted.size();
+    uint64_t total = 0;
+    for (const TableSpec &spec : specs) {
+        if (spec.rows < 0)
+            throw std::invalid_argument("joined tables need a row count for every spec");
+        if (spec.wanted.size() != nw)
+            throw std::invalid_argument("joined tables need the same number of wanted columns");
+        // the buffer is sized from the counts before any row is read: a count is trusted only
+        // as far as its file could hold it (a row takes at least one byte; binary: its size)
+        if (uint64_t(spec.rows) > max_rows(spec))
+            throw TruncatedData("the data ends before the " + std::to_string(spec.rows) +
+                                " rows of " + spec.path);
+        total += uint64_t(spec.rows);  // (each count is at most its file's size: no overflow)
+    }
+    joined.resize(size_t(total) * nw);
+    out.assign(specs.size(), Table{});
+    size_t at = 0;
+    for (size_t i = 0; i < specs.size(); ++i) {
+        out[i].block = joined.data() + at;
+        at += size_t(specs[i].rows) * nw;
+    }
+    read_each(specs, out, threads, progress);
 }
 
 }  // namespace pointviz

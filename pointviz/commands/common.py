@@ -143,24 +143,29 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
         scene = Scene([loaded], lights=lights, ground=args.ground or "auto",
                       look=args.look or "auto", **kw)
     radii_done = _radii_in_background(loaded, args.input) if defer_radii and consume else None
+    fov = 40.0 if args.fov is None else args.fov
+    fitting = None  # a handed-over cloud's camera is fitted beside its tree's build
     if args.camera:
         camera = Camera.from_json(args.camera)
     elif demo_camera is not None:
         camera = demo_camera
+    elif consume:
+        fitting = _camera_in_background(loaded, fov)
     else:
         try:
-            camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded,
-                                fov_deg=40.0 if args.fov is None else args.fov)
+            camera = Camera.fit(scene if not hasattr(loaded, "points") else loaded, fov_deg=fov)
         finally:
             if radii_done is not None:
                 radii_done()
-    if args.fov is not None and args.fov != camera.fov_deg:
-        camera = camera.replace(fov_deg=args.fov)  # validates: names fov_deg when out of range
-    if args.width or args.height:
-        w = args.width or int(round(camera.width * (args.height / camera.height)))
-        h = args.height or int(round(camera.height * (args.width / camera.width)))
-        camera = camera.with_size(w, h)
-    if prepare:
+    if fitting is not None:  # (an error here leaves the camera's daemon thread to end alone)
+        if radii_done is not None:
+            radii_done()  # the build needs them
+        RenderSettings(**render_kwargs(args))  # bad options fail before the tree
+        scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto", kw)
+        scene.bounds()  # the frame's bounds and ground level, computed once, now
+        camera = fitting()
+    camera = _sized(camera, args)
+    if prepare and fitting is None:
         RenderSettings(**render_kwargs(args))  # bad options fail before the trees
         if consume:
             scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto",
@@ -168,6 +173,31 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
         else:
             prepare_scene(scene)
     return scene, camera
+
+
+def _sized(camera, args):
+    """The camera with the field of view and image size the options give."""
+    if args.fov is not None and args.fov != camera.fov_deg:
+        camera = camera.replace(fov_deg=args.fov)  # validates: names fov_deg when out of range
+    if args.width or args.height:
+        w = args.width or int(round(camera.width * (args.height / camera.height)))
+        h = args.height or int(round(camera.height * (args.width / camera.width)))
+        camera = camera.with_size(w, h)
+    return camera
+
+
+def _camera_in_background(cloud, fov: float):
+    """Fit the camera of a cloud about to be handed over to its tree's build on a worker thread,
+    so that the fit (numpy on one core) runs beside the build (the core, without Python's
+    lock). The fit gets a copy of its sample of the points (:func:`pointviz.framing.fit_sample`:
+    the rows :meth:`Camera.fit` looks at, all of them below FIT_SAMPLE points), which gives the
+    camera of the whole cloud, bit for bit, since the build frees the cloud's own arrays.
+    Returns the function that waits for the camera and raises what the fit raised."""
+    from ..camera import Camera
+    from ..framing import fit_sample
+
+    sample, up = np.array(fit_sample(cloud.points)), cloud.up
+    return _in_background("pointviz-camera", lambda: Camera.fit(sample, fov_deg=fov, up=up))
 
 
 def _radii_in_background(loaded, path):
@@ -179,21 +209,29 @@ def _radii_in_background(loaded, path):
         return None
     from ..io import estimate_radii_of
 
-    failed = []
+    return _in_background("pointviz-radii", lambda: estimate_radii_of(loaded, path))
 
-    def work():
+
+def _in_background(name: str, work):
+    """Run ``work()`` on a daemon thread named ``name``; returns the function that waits for it
+    and returns its result or raises what it raised."""
+    out = []
+
+    def run():
         try:
-            estimate_radii_of(loaded, path)
+            out.append((True, work()))
         except BaseException as exc:  # noqa: BLE001 - raised again by the caller's wait
-            failed.append(exc)
+            out.append((False, exc))
 
-    thread = threading.Thread(target=work, name="pointviz-radii", daemon=True)
+    thread = threading.Thread(target=run, name=name, daemon=True)
     thread.start()
 
     def wait():
         thread.join()
-        if failed:
-            raise failed[0]
+        ok, value = out[0]
+        if not ok:
+            raise value
+        return value
 
     return wait
 

@@ -27,8 +27,8 @@ def run(args) -> int:
     check_image_path(args.output, args.overwrite)  # fail before the expensive part
     setup = None
     if getattr(args, "denoise", True):  # the denoiser's setup overlaps the reading and the fit
-        # this thread's imports first: importing pyoidn holds Python's lock (~0.03-0.1 s),
-        # which the reading and the fit, in the core, do not need
+        # this thread's imports first: the setup's own Python holds Python's lock, which the
+        # reading and the fit, in the core, do not need
         from .. import camera as _camera, io as _io, scene as _scene  # noqa: F401
         from ..denoise import DENOISE_QUALITY, prepare_in_background
 

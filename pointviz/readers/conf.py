@@ -94,7 +94,7 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
                 f"{path}: line {lineno}: scan {scan_path.name} is a .conf file; a registration "
                 "lists point files"
             )
-    scans = _read_scans(path, entries, read_scan)
+    scans, joined = _read_scans(path, entries, read_scan)
     parts, grids = [], []
     for (scan_path, t, q, lineno), scan in zip(entries, scans):
         if scan.finite == 0:
@@ -106,12 +106,13 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
         eye = eye_local @ rot + t
         parts.append((scan_path.name, scan.points, scan.colors, eye))
         grids.append(scan.grid)
-    points = np.concatenate([w for _, w, _, _ in parts])
+    # the core read the scans into one array: their points are its rows (else joined here)
+    points = joined if joined is not None else np.concatenate([w for _, w, _, _ in parts])
     sizes = [len(w) for _, w, _, _ in parts]
     colors = None
     if all(c is not None for _, _, c, _ in parts):
         colors = np.concatenate([c for _, _, c, _ in parts])
-    viewpoints = np.repeat(np.array([e for _, _, _, e in parts]), sizes, axis=0)
+    viewpoints = _rows_per_scan([e for _, _, _, e in parts], sizes)
     scan_index = np.repeat(np.arange(len(parts), dtype=np.int32), sizes)
     # the scanner's grid of each scan (its range_grid): neighbours within a scan come from it
     scan_grid = np.concatenate(grids) if all(g is not None for g in grids) else None
@@ -123,6 +124,17 @@ def read_conf(path: Path, sample, rng, read_scan) -> PointCloud:
     ]
     return point_cloud(path, points, None, colors, sample=sample, rng=rng, viewpoints=viewpoints,
                        scan_index=scan_index, scan_grid=scan_grid, notes=notes)
+
+
+def _rows_per_scan(values, sizes) -> np.ndarray:
+    """(sum(sizes), 3) float64: ``values[k]`` on each of scan k's ``sizes[k]`` rows (written by
+    blocks: ``np.repeat`` along rows copies 24 bytes at a time)."""
+    out = np.empty((sum(sizes), 3))
+    at = 0
+    for value, size in zip(values, sizes):
+        out[at:at + size] = value
+        at += size
+    return out
 
 
 @dataclass
@@ -138,8 +150,9 @@ class _Scan:
     grid: np.ndarray | None = None  # (n, 2) int32 cell of each point in the scan's grid
 
 
-def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
-    """Every scan of a registration, placed. PLY point scans (the usual case) are read and
+def _read_scans(path: Path, entries, read_scan) -> tuple[list[_Scan], np.ndarray | None]:
+    """Every scan of a registration, placed, and the registration's (n, 3) points when the
+    core read them into one array (else None). PLY point scans (the usual case) are read and
     placed by one core call, in parallel; anything else by ``read_scan(path)`` (the registry's
     reader of its format), then placed here."""
 
@@ -156,8 +169,17 @@ def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
             raise named(lineno, exc if str(scan_path) in str(exc) else f"{scan_path}: {exc}") from exc
         if plan is not None:
             plans[i] = plan
+    specs = [plan.spec for plan in plans.values()]
+    # every scan a planned PLY file: all read into one array, the registration's points
+    join = len(plans) == len(entries) and table.joinable(specs)
+    joined = None
     try:
-        tables = dict(zip(plans, table.read([plan.spec for plan in plans.values()])))
+        if join:
+            values, tables = table.read_joined(specs)
+            tables = dict(zip(plans, tables))
+            joined = values if values.shape[1] == 3 else None
+        else:
+            tables = dict(zip(plans, table.read(specs)))
     except (table.TruncatedData, table.MalformedData, RuntimeError):
         for i, plan in plans.items():  # which scan: read them one by one
             try:
@@ -182,4 +204,4 @@ def _read_scans(path: Path, entries, read_scan) -> list[_Scan]:
                                    len(local)))
         except PointvizError as exc:
             raise named(lineno, exc if str(scan_path) in str(exc) else f"{scan_path}: {exc}") from exc
-    return scans
+    return scans, joined

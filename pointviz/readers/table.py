@@ -115,10 +115,41 @@ def read(specs: list, threads: int = 0) -> list[TableData]:
     TruncatedData, MalformedData
         The first failing spec's error (the caller names the file and the format).
     """
-    out = []
-    for d in _core.read_tables(list(specs), threads):
-        n = int(d["finite"])
-        out.append(TableData(d["values"], int(d["lines_after"]), np.array(d["lo"]),
-                             np.array(d["hi"]), np.array(d["sum"]) / max(n, 1), n,
-                             d.get("grid")))
-    return out
+    return [_table_data(d, d["values"]) for d in _core.read_tables(list(specs), threads)]
+
+
+def joinable(specs: list) -> bool:
+    """Whether :func:`read_joined` can read these specs: each has a row count, and they all
+    return the same number of columns."""
+    return bool(specs) and all(s.rows >= 0 for s in specs) and len(
+        {len(s.wanted) for s in specs}) == 1
+
+
+def read_joined(specs: list, threads: int = 0) -> tuple[np.ndarray, list[TableData]]:
+    """Read every spec as :func:`read` does, into one array: the rows of the specs one after
+    the other (no copy to join them afterwards). The specs must be :func:`joinable`.
+
+    Returns
+    -------
+    values : (total rows, columns) float64
+    tables : list of TableData
+        Per spec; each one's ``values`` is its block of ``values`` (a view).
+
+    Raises
+    ------
+    TruncatedData, MalformedData
+        As :func:`read`; TruncatedData also when a spec's row count is more than its file can
+        hold (checked before anything is read).
+    """
+    values, dicts = _core.read_tables_joined(list(specs), threads)
+    tables, at = [], 0
+    for spec, d in zip(specs, dicts):
+        tables.append(_table_data(d, values[at:at + spec.rows]))
+        at += spec.rows
+    return values, tables
+
+
+def _table_data(d: dict, values: np.ndarray) -> TableData:
+    n = int(d["finite"])
+    return TableData(values, int(d["lines_after"]), np.array(d["lo"]), np.array(d["hi"]),
+                     np.array(d["sum"]) / max(n, 1), n, d.get("grid"))

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <limits>
 #include <random>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -322,6 +323,94 @@ void test_several_files() {
     for (const TableSpec &s : specs) std::remove(s.path.c_str());
 }
 
+/// Several files read into one buffer: each file's block holds what it gives alone, in order,
+/// for any thread count; a buffer large enough for huge pages (kHugeBufferBytes) too. Counts
+/// are checked against the files before the buffer is sized; specs that cannot share one buffer
+/// are refused before anything is read.
+void test_joined_files() {
+    std::vector<TableSpec> specs;
+    std::vector<double> want;
+    for (int k = 0; k < 5; ++k) {
+        std::string path = temp_path("joined" + std::to_string(k));
+        const int64_t rows = k == 3 ? 200000 : 700 + 300 * k;  // 200k x 3 doubles: 4.8 MB
+        if (k % 2 == 0) {
+            std::string text;
+            for (int64_t r = 0; r < rows; ++r)
+                text += std::to_string(k) + " " + std::to_string(r) + " " + std::to_string(-r) + "\n";
+            write_file(path, text);
+            specs.push_back(ascii_spec(path, 3, rows));
+        } else {
+            std::string bytes;
+            for (int64_t r = 0; r < rows; ++r) {
+                const float row[3] = {float(k), float(r), float(-r)};
+                bytes.append(reinterpret_cast<const char *>(row), sizeof row);
+            }
+            write_file(path, bytes);
+            TableSpec spec;
+            spec.path = path;
+            spec.encoding = Encoding::BinaryLittle;
+            spec.columns = {Scalar::F32, Scalar::F32, Scalar::F32};
+            spec.rows = rows;
+            spec.wanted = {0, 1, 2};
+            specs.push_back(spec);
+        }
+        Table t;
+        read_one(specs.back(), t);
+        want.insert(want.end(), t.values.begin(), t.values.end());
+    }
+    for (int threads : {1, 2, 3}) {
+        TableValues joined;
+        std::vector<Table> out;
+        Progress p;
+        read_tables_joined(specs, joined, out, threads, p);
+        bool blocks = out.size() == specs.size();
+        size_t at = 0;
+        for (size_t k = 0; blocks && k < out.size(); ++k) {
+            blocks = out[k].values.empty() && out[k].block == joined.data() + at &&
+                     out[k].rows == uint64_t(specs[k].rows);
+            at += size_t(specs[k].rows) * 3;
+        }
+        CHECK(blocks, "joined blocks misplaced (threads %d)", threads);
+        CHECK(same(joined, want), "joined values differ from each file read alone (threads %d)",
+              threads);
+    }
+    bool reserved = false;
+    auto outcome = [&](std::vector<TableSpec> s) {
+        TableValues joined;
+        std::vector<Table> out;
+        Progress p;
+        Outcome o = Outcome::Ok;
+        try {
+            read_tables_joined(s, joined, out, 2, p);
+        } catch (const TruncatedData &) {
+            o = Outcome::Truncated;
+        } catch (const std::invalid_argument &) {
+            o = Outcome::Malformed;
+        }
+        reserved = !joined.empty();
+        return o;
+    };
+    std::vector<TableSpec> lying = specs;
+    lying[1].rows = int64_t(1) << 60;  // binary: far beyond the file
+    CHECK(outcome(lying) == Outcome::Truncated && !reserved, "joined binary 2^60 rows");
+    lying = specs;
+    lying[2].rows = int64_t(1) << 50;  // ASCII: more rows than the file has bytes
+    CHECK(outcome(lying) == Outcome::Truncated && !reserved, "joined ascii 2^50 rows");
+    lying = specs;
+    lying[4].rows += 1;  // within the file's bytes, beyond its rows: found by the read
+    CHECK(outcome(lying) == Outcome::Truncated, "joined ascii one row short");
+    lying = specs;
+    lying[3].rows += 1;
+    CHECK(outcome(lying) == Outcome::Truncated, "joined binary one row short");
+    std::vector<TableSpec> odd = specs;
+    odd[0].rows = -1;
+    CHECK(outcome(odd) == Outcome::Malformed && !reserved, "joined without a row count");
+    odd = specs;
+    odd[3].wanted = {0, 1};
+    CHECK(outcome(odd) == Outcome::Malformed, "joined with different columns");
+    for (const TableSpec &s : specs) std::remove(s.path.c_str());
+}
+
 /// Random bytes and random specs: every outcome is a table or one of the reader's errors, and
 /// a table always holds rows x wanted values.
 void test_fuzz() {
@@ -375,6 +464,7 @@ int main() {
     test_text_tables_skip_blank_and_comment_lines();
     test_binary_round_trip_both_endians();
     test_several_files();
+    test_joined_files();
     test_fuzz();
     std::printf("reader_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
