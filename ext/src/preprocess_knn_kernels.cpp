@@ -10,12 +10,14 @@
 #if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
 #include <emmintrin.h>
 #endif
-// AVX-512 kernels: compiled with a target attribute on each function (not for the whole file),
-// so the rest runs on any x86-64 CPU; chosen only where the CPU has AVX-512 F/VL/DQ.
+// AVX2 and AVX-512 kernels: compiled with a target attribute on each function (not for the
+// whole file), so the rest runs on any x86-64 CPU; chosen only where the CPU has AVX2, or
+// AVX-512 F/VL/DQ.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(POINTVIZ_NO_SIMD)
-#define POINTVIZ_KNN_AVX512 1
+#define POINTVIZ_KNN_SIMD 1
 #include <immintrin.h>
-#define POINTVIZ_TARGET_AVX512 __attribute__((target("avx512f,avx512vl,avx512dq,popcnt")))
+#define POINTVIZ_TARGET_AVX2 __attribute__((target("avx2,popcnt")))
+#define POINTVIZ_TARGET_AVX512 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,popcnt")))
 #endif
 
 namespace pointviz {
@@ -38,9 +40,11 @@ size_t near_base(const double *x, const double *y, const double *z, const uint32
     return cnt;
 }
 
-size_t boxes_base(const double *lohi, size_t m, const double *q, double rq, uint32_t *out) {
+/// boxes_base over the boxes from `first` on (positions still counted from 0).
+size_t boxes_base_from(const double *lohi, size_t m, size_t first, const double *q, double rq,
+                       uint32_t *out) {
     size_t cnt = 0;
-    for (size_t a = 0; a < m; ++a) {
+    for (size_t a = first; a < m; ++a) {
         double d = 0;
         for (int j = 0; j < 3; ++j) {
             double e = std::max({lohi[j * m + a] - q[j], q[j] - lohi[(3 + j) * m + a], 0.0});
@@ -50,6 +54,10 @@ size_t boxes_base(const double *lohi, size_t m, const double *q, double rq, uint
         cnt += !(d > rq);
     }
     return cnt;
+}
+
+size_t boxes_base(const double *lohi, size_t m, const double *q, double rq, uint32_t *out) {
+    return boxes_base_from(lohi, m, 0, q, rq, out);
 }
 
 /// Each candidate's place is counted (how many come before it) instead of found by sorting:
@@ -109,9 +117,114 @@ double rank_base(double *d2, const uint32_t *id, size_t cnt, uint32_t k, uint32_
     return kth;
 }
 
+/// The vector kernels' selection: candidates a .. a + lanes - 1 counted `place` (how many are
+/// closer), those among the k nearest written to `row`; `seen` marks the places taken (counts
+/// that are not all distinct mean ties, which rank_base breaks by index), `kth` gets the k-th
+/// distance.
+template <class Count>
+inline void take_places(const Count *place, size_t a, size_t lanes, const double *d2,
+                        const uint32_t *id, uint32_t k, uint32_t *row, uint64_t &seen,
+                        double &kth) {
+    for (size_t h = 0; h < lanes; ++h) {
+        seen |= uint64_t(1) << place[h];
+        if (place[h] < k) {
+            row[place[h]] = id[a + h];
+            if (place[h] == k - 1) kth = d2[a + h];
+        }
+    }
+}
+
 constexpr KnnKernels kBase{Isa::Base, "base", boxes_base, near_base, rank_base};
 
-#if defined(POINTVIZ_KNN_AVX512)
+#if defined(POINTVIZ_KNN_SIMD)
+
+// ---- AVX2: four candidates at a time ----
+
+/// boxes_base's distances (the same operations in the same order), four boxes at a time.
+POINTVIZ_TARGET_AVX2
+size_t boxes_avx2(const double *lohi, size_t m, const double *q, double rq, uint32_t *out) {
+    const __m256d zero = _mm256_setzero_pd(), r = _mm256_set1_pd(rq);
+    __m256d qv[3];
+    for (int j = 0; j < 3; ++j) qv[j] = _mm256_set1_pd(q[j]);
+    size_t cnt = 0, a = 0;
+    for (; a + 4 <= m; a += 4) {
+        __m256d d = zero;
+        for (int j = 0; j < 3; ++j) {
+            const __m256d lo = _mm256_loadu_pd(lohi + j * m + a);
+            const __m256d hi = _mm256_loadu_pd(lohi + (3 + j) * m + a);
+            const __m256d e = _mm256_max_pd(
+                _mm256_max_pd(_mm256_sub_pd(lo, qv[j]), _mm256_sub_pd(qv[j], hi)), zero);
+            d = _mm256_add_pd(d, _mm256_mul_pd(e, e));
+        }
+        for (unsigned keep = unsigned(_mm256_movemask_pd(_mm256_cmp_pd(d, r, _CMP_NGT_UQ)));
+             keep; keep &= keep - 1)
+            out[cnt++] = uint32_t(a) + uint32_t(__builtin_ctz(keep));
+    }
+    return cnt + boxes_base_from(lohi, m, a, q, rq, out + cnt);
+}
+
+/// near_base's distances, four points at a time (the rest as near_base does them).
+POINTVIZ_TARGET_AVX2
+size_t near_avx2(const double *x, const double *y, const double *z, const uint32_t *id,
+                 uint32_t b, uint32_t e, const double *q, double rq, uint32_t self, double *d2,
+                 uint32_t *idx, size_t cnt) {
+    const __m256d qx = _mm256_set1_pd(q[0]), qy = _mm256_set1_pd(q[1]);
+    const __m256d qz = _mm256_set1_pd(q[2]), r = _mm256_set1_pd(rq);
+    uint32_t s = b;
+    for (; s + 4 <= e; s += 4) {
+        const __m256d dx = _mm256_sub_pd(_mm256_loadu_pd(x + s), qx);
+        const __m256d dy = _mm256_sub_pd(_mm256_loadu_pd(y + s), qy);
+        const __m256d dz = _mm256_sub_pd(_mm256_loadu_pd(z + s), qz);
+        const __m256d d = _mm256_add_pd(
+            _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)), _mm256_mul_pd(dz, dz));
+        const unsigned near = unsigned(_mm256_movemask_pd(_mm256_cmp_pd(d, r, _CMP_LE_OQ)));
+        double dd[4];
+        _mm256_storeu_pd(dd, d);
+        for (unsigned h = 0; h < 4; ++h) {
+            d2[cnt] = dd[h];
+            idx[cnt] = id[s + h];
+            cnt += ((near >> h) & 1u) & unsigned(id[s + h] != self);
+        }
+    }
+    return near_base(x, y, z, id, s, e, q, rq, self, d2, idx, cnt);
+}
+
+/// rank_avx512's count (without ties), four candidates at a time.
+POINTVIZ_TARGET_AVX2
+double rank_avx2(double *d2, const uint32_t *id, size_t cnt, uint32_t k, uint32_t *row) {
+    if (cnt > 64) return rank_base(d2, id, cnt, k, row);
+    double kth = 0;
+    uint64_t seen = 0;  // the places taken
+    const __m256d none = _mm256_set1_pd(std::numeric_limits<double>::quiet_NaN());
+    for (size_t a = 0; a < cnt; a += 4) {
+        // lanes past the end: NaN, which compares false
+        __m256d va = none;
+        if (cnt - a >= 4) {
+            va = _mm256_loadu_pd(d2 + a);
+        } else {
+            double t[4];
+            _mm256_storeu_pd(t, none);
+            for (size_t h = 0; a + h < cnt; ++h) t[h] = d2[a + h];
+            va = _mm256_loadu_pd(t);
+        }
+        // compare masks are -1: subtracting them counts
+        __m256i below = _mm256_setzero_si256();
+        for (size_t b = 0; b < cnt; ++b)
+            below = _mm256_sub_epi64(
+                below, _mm256_castpd_si256(_mm256_cmp_pd(_mm256_set1_pd(d2[b]), va, _CMP_LT_OQ)));
+        uint64_t place[4];
+        _mm256_storeu_si256(reinterpret_cast<__m256i *>(place), below);
+        take_places(place, a, std::min<size_t>(4, cnt - a), d2, id, k, row, seen, kth);
+    }
+    if (size_t(__builtin_popcountll(seen)) != cnt) return rank_base(d2, id, cnt, k, row);
+    return kth;
+}
+
+constexpr KnnKernels kAvx2{Isa::Avx2, "avx2", boxes_avx2, near_avx2, rank_avx2};
+
+bool cpu_has_avx2() {
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("popcnt");
+}
 
 // ---- AVX-512: eight candidates at a time ----
 
@@ -191,13 +304,7 @@ double rank_avx512(double *d2, const uint32_t *id, size_t cnt, uint32_t k, uint3
                 below, _mm512_cmp_pd_mask(_mm512_set1_pd(d2[b]), va, _CMP_LT_OQ), below, one);
         uint32_t place[8];
         _mm256_storeu_si256(reinterpret_cast<__m256i *>(place), below);
-        for (size_t h = 0; h < 8 && a + h < cnt; ++h) {
-            seen |= uint64_t(1) << place[h];
-            if (place[h] < k) {
-                row[place[h]] = id[a + h];
-                if (place[h] == k - 1) kth = d2[a + h];
-            }
-        }
+        take_places(place, a, std::min<size_t>(8, cnt - a), d2, id, k, row, seen, kth);
     }
     if (size_t(__builtin_popcountll(seen)) != cnt) return rank_base(d2, id, cnt, k, row);
     return kth;
@@ -218,7 +325,8 @@ bool knn_kernels_available(Isa isa) {
     switch (isa) {
         case Isa::Auto:
         case Isa::Base: return true;
-#if defined(POINTVIZ_KNN_AVX512)
+#if defined(POINTVIZ_KNN_SIMD)
+        case Isa::Avx2: return cpu_has_avx2();
         case Isa::Avx512: return cpu_has_avx512();
 #endif
         default: return false;
@@ -226,10 +334,11 @@ bool knn_kernels_available(Isa isa) {
 }
 
 const KnnKernels &knn_kernels(Isa isa) {
-#if defined(POINTVIZ_KNN_AVX512)
+#if defined(POINTVIZ_KNN_SIMD)
     // the CPU does not change while the process runs: decided once
-    static const bool avx512 = cpu_has_avx512();
+    static const bool avx512 = cpu_has_avx512(), avx2 = cpu_has_avx2();
     if ((isa == Isa::Auto || isa == Isa::Avx512) && avx512) return kAvx512;
+    if ((isa == Isa::Auto || isa == Isa::Avx2) && avx2) return kAvx2;
 #endif
     if (isa == Isa::Auto || isa == Isa::Base) return kBase;
     throw std::invalid_argument("knn kernels: instruction set not available on this build or CPU");

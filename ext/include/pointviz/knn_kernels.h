@@ -1,6 +1,6 @@
 // pointviz — the inner loops of the all-points neighbour search (knn_each, knn.h), one set per
-// instruction set, chosen at run time: the portable build (x86-64: SSE2) everywhere, AVX-512
-// where the CPU has it. Every set gives the same rows, bit for bit: the distances are the same
+// instruction set, chosen at run time: the portable build (x86-64: SSE2) everywhere, AVX2 or
+// AVX-512 where the CPU has them. Every set gives the same rows, bit for bit: the distances are the same
 // operations in the same order (the build turns floating-point contraction off), and the
 // selection is exact.
 #pragma once
@@ -34,9 +34,8 @@ struct KnnKernels {
     double (*rank)(double *d2, const uint32_t *id, size_t cnt, uint32_t k, uint32_t *row);
 };
 
-/// The kernels of `isa` (Auto: the best this build and this CPU run: Avx512 or Base). Throws
-/// std::invalid_argument when `isa` is unavailable (Sse42 and Avx2 have no kernels of their
-/// own here).
+/// The kernels of `isa` (Auto: the best this build and this CPU run: Avx512, Avx2 or Base).
+/// Throws std::invalid_argument when `isa` is unavailable (Sse42 has no kernels of its own).
 const KnnKernels &knn_kernels(Isa isa);
 
 /// Whether knn_kernels(isa) has kernels of that set here (Auto, Base: always).
