@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "pointviz/dispatch.h"
 #include "pointviz/knn_kernels.h"
 #include "pointviz/pca.h"
 #include "pointviz/preprocess.h"
@@ -725,7 +726,8 @@ void test_knn_kernels_agree_with_the_portable_ones() {
     std::uniform_real_distribution<double> U(-1.0, 1.0);
     for (Isa isa : {Isa::Avx2, Isa::Avx512}) {
         if (!knn_kernels_available(isa)) {
-            std::printf("preprocess_tests: no %d kernels on this CPU, not tested\n", int(isa));
+            std::printf("preprocess_tests: no %s knn kernels in this build or on this CPU, not "
+                        "tested\n", isa_name(isa));
             continue;
         }
         const KnnKernels &kk = knn_kernels(isa);
