@@ -156,41 +156,40 @@ void test_radii_from_rows_equal_the_members_own() {
 
 void test_knn_within_groups_matches_brute_force() {
     // three interleaved "scans" of one sphere and a scan of 5 points (fewer than k + 1: its
-    // points take their neighbours among all points)
+    // points take their neighbours among all points); the scans numbered 0-2 and 7, or by
+    // numbers far apart (negative, up to INT32_MAX: a sparse range)
     std::vector<double> p = sphere_points(1500, 11, 0.02);
     size_t n = p.size() / 3;
-    std::vector<int32_t> group(n);
-    for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? 7 : int32_t(i % 3);
-    const uint32_t k = 12;
-    KnnTree all(p.data(), n, 2);
-    std::vector<uint32_t> ref;
-    for (int threads : {1, 3}) {
-        NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
-        CHECK(t.n == n && t.k == k, "table shape");
-        if (threads == 1) {
-            ref = t.index;
-        } else {
-            CHECK(t.index == ref, "within-group neighbours differ at %d threads", threads);
+    const int32_t dense[4] = {0, 1, 2, 7};
+    const int32_t sparse[4] = {-2000000000, 5, 2000000000, 2147483647};
+    for (const int32_t *number : {dense, sparse}) {
+        std::vector<int32_t> group(n);
+        for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? number[3] : number[i % 3];
+        const uint32_t k = 12;
+        KnnTree all(p.data(), n, 2);
+        std::vector<uint32_t> ref;
+        for (int threads : {1, 3}) {
+            NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
+            CHECK(t.n == n && t.k == k, "table shape");
+            if (threads == 1) {
+                ref = t.index;
+            } else {
+                CHECK(t.index == ref, "within-group neighbours differ at %d threads", threads);
+            }
         }
-    }
-    size_t bad = 0;
-    for (size_t i = 0; i < n; ++i) {
-        std::vector<uint32_t> want;
-        if (group[i] == 7) {
-            want = brute_row(p, i, k);
-        } else {  // brute force over the same group only, by (distance, index)
-            std::vector<uint32_t> idx;
-            for (size_t j = 0; j < n; ++j)
-                if (j != i && group[j] == group[i]) idx.push_back(uint32_t(j));
-            std::sort(idx.begin(), idx.end(), [&](uint32_t a, uint32_t b) {
-                double da = d2(&p[3 * i], &p[3 * size_t(a)]), db = d2(&p[3 * i], &p[3 * size_t(b)]);
-                return da < db || (da == db && a < b);
-            });
-            want.assign(idx.begin(), idx.begin() + k);
+        size_t bad = 0;
+        for (size_t i = 0; i < n; ++i) {
+            std::vector<uint32_t> want;
+            if (i < 5) {
+                want = brute_row(p, i, k);
+            } else {
+                want = brute_row(p, i, k, &group);  // over the same group only
+            }
+            bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
         }
-        bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
+        CHECK(bad == 0, "within-group neighbours (scans %d ...): %zu of %zu rows differ from "
+              "brute force", number[0], bad, n);
     }
-    CHECK(bad == 0, "within-group neighbours: %zu of %zu rows differ from brute force", bad, n);
 }
 
 /// A scan of the smooth surface z = 0.3 sin(1.3 x) + 0.2 x y on a sheared grid with 2.5x the
