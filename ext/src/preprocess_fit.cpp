@@ -396,18 +396,23 @@ std::vector<uint8_t> thin_greedy(const double *points, const NeighbourTable &nb,
                 const double r2 = thin * thin * spacing[i] * spacing[i];
                 const uint32_t *row = nb.row(i);
                 const double *q = points + 3 * size_t(i);
-                Open o{i, 0};
-                bool dropped = false;
-                for (uint32_t m = 0; m < k && !dropped; ++m) {
+                const double pi = priority ? priority[i] : 0.0;
+                // every neighbour tested without a branch (the priorities' order is random:
+                // branching on it mispredicted about every other neighbour): the earlier ones
+                // within the radius, kept or open
+                uint64_t kept = 0, open_near = 0;
+                for (uint32_t m = 0; m < k; ++m) {
                     const uint32_t j = row[m];
                     const uint8_t s = state[j].load(std::memory_order_relaxed);
-                    if (s == kDropped || !before(j, i)) continue;
+                    const double pj = priority ? priority[j] : 0.0;
+                    const bool earlier = (pj > pi) | ((pj == pi) & (j < i));
                     const double d2 = dist2(points + 3 * size_t(j), q);
-                    if (!(d2 < r2 || d2 == 0.0)) continue;
-                    if (s == kKept) dropped = true;
-                    else o.wait |= uint64_t(1) << m;
+                    const bool hit = earlier & ((d2 < r2) | (d2 == 0.0));
+                    kept |= uint64_t(hit & (s == kKept)) << m;
+                    open_near |= uint64_t(hit & (s == kOpen)) << m;
                 }
-                if (dropped) state[i].store(kDropped, std::memory_order_relaxed);
+                Open o{i, open_near};
+                if (kept) state[i].store(kDropped, std::memory_order_relaxed);
                 else if (!settle(o)) part.push_back(o);
             }
         }, progress ? &progress->cancel : nullptr);

@@ -9,10 +9,7 @@
 #include <stdexcept>
 #include <thread>
 
-#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
-#include <emmintrin.h>
-#endif
-
+#include "pointviz/knn_kernels.h"
 #include "pointviz/parallel.h"
 
 namespace pointviz {
@@ -266,85 +263,27 @@ inline double candidate_d2(Candidate c) {
     return d;
 }
 
-/// Candidates up to which rank_smallest's quadratic count beats a comparison sort.
+/// Candidates up to which the kernels' quadratic count (KnnKernels::rank) beats a comparison
+/// sort.
 constexpr size_t kRankedMax = 64;
-
-/// The k smallest of `cnt` candidates (squared distances `d2`, finite, with a free slot at
-/// d2[cnt]; indices `id`, distinct) by (distance, index), written to `row` in ascending order;
-/// returns the k-th distance. Each candidate's place is counted (how many come before it)
-/// instead of found by sorting: the comparisons are independent of the data and vectorised,
-/// where nth_element + sort of a few dozen keys mispredicted about every other comparison
-/// (CPU of the 31 neighbours of the dragon's 469k raw points / of the 1M points of 8 sphere
-/// scans, one thread: 0.757 / 1.420 s -> 0.653 / 1.135 s, the same tables).
-double rank_smallest(double *d2, const uint32_t *id, size_t cnt, uint32_t k, uint32_t *row) {
-    const size_t pairs = (cnt + 1) / 2;
-    d2[cnt] = std::numeric_limits<double>::quiet_NaN();  // the odd slot: compares false
-    double kth = 0;
-    for (size_t a = 0; a < cnt; a += 2) {
-        // below[h], equal[h]: the candidates closer than / as close as a + h
-        uint64_t below[2], equal[2];
-#if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
-        // two candidates against two others at a time: compare masks are -1, so subtracting
-        // them counts
-        const __m128d v0 = _mm_set1_pd(d2[a]), v1 = _mm_set1_pd(d2[a + 1]);
-        __m128i below0 = _mm_setzero_si128(), equal0 = _mm_setzero_si128();
-        __m128i below1 = _mm_setzero_si128(), equal1 = _mm_setzero_si128();
-        for (size_t b = 0; b < pairs; ++b) {
-            const __m128d vb = _mm_loadu_pd(d2 + 2 * b);
-            below0 = _mm_sub_epi64(below0, _mm_castpd_si128(_mm_cmplt_pd(vb, v0)));
-            equal0 = _mm_sub_epi64(equal0, _mm_castpd_si128(_mm_cmpeq_pd(vb, v0)));
-            below1 = _mm_sub_epi64(below1, _mm_castpd_si128(_mm_cmplt_pd(vb, v1)));
-            equal1 = _mm_sub_epi64(equal1, _mm_castpd_si128(_mm_cmpeq_pd(vb, v1)));
-        }
-        uint64_t lanes[4][2];
-        _mm_storeu_si128(reinterpret_cast<__m128i *>(lanes[0]), below0);
-        _mm_storeu_si128(reinterpret_cast<__m128i *>(lanes[1]), below1);
-        _mm_storeu_si128(reinterpret_cast<__m128i *>(lanes[2]), equal0);
-        _mm_storeu_si128(reinterpret_cast<__m128i *>(lanes[3]), equal1);
-        for (int h = 0; h < 2; ++h) {
-            below[h] = lanes[h][0] + lanes[h][1];
-            equal[h] = lanes[2 + h][0] + lanes[2 + h][1];
-        }
-#else
-        for (int h = 0; h < 2; ++h) {
-            below[h] = equal[h] = 0;
-            for (size_t b = 0; b < 2 * pairs; ++b) {
-                below[h] += d2[b] < d2[a + h];
-                equal[h] += d2[b] == d2[a + h];
-            }
-        }
-#endif
-        for (size_t h = 0; h < 2 && a + h < cnt; ++h) {
-            const double da = d2[a + h];
-            uint64_t place = below[h];
-            if (equal[h] > 1)  // ties (itself included): broken by index
-                for (size_t b = 0; b < cnt; ++b) place += d2[b] == da && id[b] < id[a + h];
-            if (place < k) {
-                row[place] = id[a + h];
-                if (place == k - 1) kth = da;
-            }
-        }
-    }
-    return kth;
-}
 
 }  // namespace
 
 NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
-                       Progress *progress) {
+                       Progress *progress, Isa isa) {
     NeighbourTable t;
     t.n = tree.size();
     t.k = t.n == 0 ? 0 : uint32_t(std::min<size_t>(k, t.n - 1));
     t.index.assign(t.n * t.k, 0);
     knn_each(tree, points, t.k, true, threads, progress, [&t](uint32_t i, const uint32_t *row) {
         std::copy(row, row + t.k, t.index.data() + size_t(i) * t.k);
-    });
+    }, isa);
     return t;
 }
 
 void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool sorted,
               int threads, Progress *progress,
-              const std::function<void(uint32_t, const uint32_t *)> &visit) {
+              const std::function<void(uint32_t, const uint32_t *)> &visit, Isa isa) {
     const size_t n = tree.size();
     const uint32_t k = n == 0 ? 0 : uint32_t(std::min<size_t>(k_wanted, n - 1));
     if (k == 0) return;
@@ -352,6 +291,12 @@ void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool
     const std::vector<uint32_t> &ids = tree.ids_;
     const std::vector<double> &pts = tree.pts_, &box = tree.box_;
     const std::vector<uint32_t> first = tree.leaf_ranges();
+    const KnnKernels &kernels = knn_kernels(isa);
+    // the points' coordinates one axis at a time (in tree order), for the kernels' vector loads
+    std::vector<double> xyz(3 * n);
+    double *xs = xyz.data(), *ys = xs + n, *zs = ys + n;
+    for (size_t r = 0; r < n; ++r)
+        xs[r] = pts[3 * r], ys[r] = pts[3 * r + 1], zs[r] = pts[3 * r + 2];
     const size_t leaves = first.size() - 1;
     const uint32_t leaf0 = (1u << tree.depth_) - 1;
     // The points of one leaf share their search: the leaves within a radius of the leaf's box
@@ -372,7 +317,8 @@ void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool
     constexpr size_t kGrainLeaves = 2048 / KnnTree::kLeafSize;
     parallel_for(leaves, kGrainLeaves, threads, [&](size_t lb, size_t le, int) {
         std::vector<double> d2(k);
-        std::vector<uint32_t> row(k), cand;
+        std::vector<uint32_t> row(k), cand, pass;
+        std::vector<double> cand_box;  // the candidate leaves' boxes, one coordinate at a time
         std::vector<Candidate> near;
         std::vector<double> near_d2;
         std::vector<uint32_t> near_id;
@@ -386,10 +332,16 @@ void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool
                 tree.gather_leaves(0, 0, &box[6 * (leaf0 + l)], r2, cand);
                 size_t total = 0;
                 for (uint32_t c : cand) total += first[c + 1] - first[c];
+                const size_t m = cand.size();
+                cand_box.resize(6 * m);
+                for (size_t a = 0; a < m; ++a)
+                    for (int j = 0; j < 6; ++j)
+                        cand_box[j * m + a] = box[6 * (leaf0 + cand[a]) + j];
+                pass.resize(m + 8);
                 if (near.size() < total) {
                     near.resize(total);
-                    near_d2.resize(total + 1);  // + rank_smallest's padding
-                    near_id.resize(total);
+                    near_d2.resize(total + 8);  // + the kernels' slots past the count
+                    near_id.resize(total + 8);
                 }
             }
             for (uint32_t r = first[l]; r < first[l + 1]; ++r) {
@@ -402,21 +354,17 @@ void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool
                     double e = std::sqrt(prev_kth) + std::sqrt(dx * dx + dy * dy + dz * dz);
                     rq = std::min(rq, e * e * (1 + 1e-9));
                 }
-                if (r2 >= 0)
-                    for (uint32_t c : cand) {
-                        const double *b = &box[6 * (leaf0 + size_t(c))];
-                        if (box_dist2(q, b) > rq) continue;
-                        for (uint32_t s = first[c]; s < first[c + 1]; ++s) {
-                            const double *p = &pts[3 * size_t(s)];
-                            double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
-                            double d = dx * dx + dy * dy + dz * dz;
-                            near_d2[cnt] = d;
-                            near_id[cnt] = ids[s];
-                            cnt += (d <= rq) & (ids[s] != self);
-                        }
+                if (r2 >= 0) {
+                    const size_t near_leaves =
+                        kernels.boxes(cand_box.data(), cand.size(), q, rq, pass.data());
+                    for (size_t a = 0; a < near_leaves; ++a) {
+                        const uint32_t c = cand[pass[a]];
+                        cnt = kernels.near(xs, ys, zs, ids.data(), first[c], first[c + 1], q, rq,
+                                           self, near_d2.data(), near_id.data(), cnt);
                     }
+                }
                 if (r2 >= 0 && cnt >= k && sorted && cnt <= kRankedMax) {
-                    prev_kth = rank_smallest(near_d2.data(), near_id.data(), cnt, k, row.data());
+                    prev_kth = kernels.rank(near_d2.data(), near_id.data(), cnt, k, row.data());
                 } else if (r2 >= 0 && cnt >= k) {
                     for (size_t a = 0; a < cnt; ++a) near[a] = candidate(near_d2[a], near_id[a]);
                     std::nth_element(near.begin(), near.begin() + (k - 1), near.begin() + cnt);

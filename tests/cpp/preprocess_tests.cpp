@@ -9,8 +9,11 @@
 #include <limits>
 #include <numeric>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
+#include "pointviz/dispatch.h"
+#include "pointviz/knn_kernels.h"
 #include "pointviz/pca.h"
 #include "pointviz/preprocess.h"
 #include "pointviz/radii.h"
@@ -153,41 +156,40 @@ void test_radii_from_rows_equal_the_members_own() {
 
 void test_knn_within_groups_matches_brute_force() {
     // three interleaved "scans" of one sphere and a scan of 5 points (fewer than k + 1: its
-    // points take their neighbours among all points)
+    // points take their neighbours among all points); the scans numbered 0-2 and 7, or by
+    // numbers far apart (negative, up to INT32_MAX: a sparse range)
     std::vector<double> p = sphere_points(1500, 11, 0.02);
     size_t n = p.size() / 3;
-    std::vector<int32_t> group(n);
-    for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? 7 : int32_t(i % 3);
-    const uint32_t k = 12;
-    KnnTree all(p.data(), n, 2);
-    std::vector<uint32_t> ref;
-    for (int threads : {1, 3}) {
-        NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
-        CHECK(t.n == n && t.k == k, "table shape");
-        if (threads == 1) {
-            ref = t.index;
-        } else {
-            CHECK(t.index == ref, "within-group neighbours differ at %d threads", threads);
+    const int32_t dense[4] = {0, 1, 2, 7};
+    const int32_t sparse[4] = {-2000000000, 5, 2000000000, 2147483647};
+    for (const int32_t *number : {dense, sparse}) {
+        std::vector<int32_t> group(n);
+        for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? number[3] : number[i % 3];
+        const uint32_t k = 12;
+        KnnTree all(p.data(), n, 2);
+        std::vector<uint32_t> ref;
+        for (int threads : {1, 3}) {
+            NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
+            CHECK(t.n == n && t.k == k, "table shape");
+            if (threads == 1) {
+                ref = t.index;
+            } else {
+                CHECK(t.index == ref, "within-group neighbours differ at %d threads", threads);
+            }
         }
-    }
-    size_t bad = 0;
-    for (size_t i = 0; i < n; ++i) {
-        std::vector<uint32_t> want;
-        if (group[i] == 7) {
-            want = brute_row(p, i, k);
-        } else {  // brute force over the same group only, by (distance, index)
-            std::vector<uint32_t> idx;
-            for (size_t j = 0; j < n; ++j)
-                if (j != i && group[j] == group[i]) idx.push_back(uint32_t(j));
-            std::sort(idx.begin(), idx.end(), [&](uint32_t a, uint32_t b) {
-                double da = d2(&p[3 * i], &p[3 * size_t(a)]), db = d2(&p[3 * i], &p[3 * size_t(b)]);
-                return da < db || (da == db && a < b);
-            });
-            want.assign(idx.begin(), idx.begin() + k);
+        size_t bad = 0;
+        for (size_t i = 0; i < n; ++i) {
+            std::vector<uint32_t> want;
+            if (i < 5) {
+                want = brute_row(p, i, k);
+            } else {
+                want = brute_row(p, i, k, &group);  // over the same group only
+            }
+            bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
         }
-        bad += !std::equal(want.begin(), want.end(), ref.begin() + i * k);
+        CHECK(bad == 0, "within-group neighbours (scans %d ...): %zu of %zu rows differ from "
+              "brute force", number[0], bad, n);
     }
-    CHECK(bad == 0, "within-group neighbours: %zu of %zu rows differ from brute force", bad, n);
 }
 
 /// A scan of the smooth surface z = 0.3 sin(1.3 x) + 0.2 x y on a sheared grid with 2.5x the
@@ -711,8 +713,114 @@ void test_thinning_matches_the_serial_visit() {
 
 }  // namespace
 
+/// The search's inner loops of every instruction set this CPU runs (knn_kernels.h) give the
+/// portable ones' answers bit for bit: the kernels on their own (every leaf size 1-17, points
+/// at the radius and at equal distances, the point itself among them; the selection of up to 64
+/// candidates with ties), and the tables of knn_all / knn_each (sorted and not, 1 and 3
+/// threads) on a cloud with duplicates and a grid's equal distances, sorted ones against brute
+/// force too.
+void test_knn_kernels_agree_with_the_portable_ones() {
+    const KnnKernels &base = knn_kernels(Isa::Base);
+    std::mt19937 g(17);
+    std::uniform_real_distribution<double> U(-1.0, 1.0);
+    for (Isa isa : {Isa::Avx2, Isa::Avx512}) {
+        if (!knn_kernels_available(isa)) {
+            std::printf("preprocess_tests: no %s knn kernels in this build or on this CPU, not "
+                        "tested\n", isa_name(isa));
+            continue;
+        }
+        const KnnKernels &kk = knn_kernels(isa);
+        CHECK(kk.isa == isa, "kernels of set %d: asked %d", int(kk.isa), int(isa));
+        // near: 40 points on a small grid (equal distances, some exactly at the radius)
+        const uint32_t n = 40;
+        std::vector<double> x(n), y(n), z(n);
+        std::vector<uint32_t> id(n);
+        for (uint32_t s = 0; s < n; ++s) {
+            x[s] = double(s % 4) * 0.25, y[s] = double((s / 4) % 4) * 0.25;
+            z[s] = double(s / 16) * 0.25;
+            id[s] = 1000 + 7 * s;
+        }
+        size_t bad = 0;
+        for (uint32_t b = 0; b < 20; ++b)
+            for (uint32_t e = b; e <= b + 17 && e <= n; ++e)
+                for (double rq : {0.0, 0.0625, 0.125, 0.3, 10.0}) {
+                    const double q[3] = {x[b], y[b], z[b]};
+                    std::vector<double> d0(n + 8, -1), d1(n + 8, -1);
+                    std::vector<uint32_t> i0(n + 8, 0), i1(n + 8, 0);
+                    size_t c0 = base.near(x.data(), y.data(), z.data(), id.data(), b, e, q, rq,
+                                          id[b], d0.data(), i0.data(), 3);
+                    size_t c1 = kk.near(x.data(), y.data(), z.data(), id.data(), b, e, q, rq,
+                                        id[b], d1.data(), i1.data(), 3);
+                    bad += c0 != c1 || std::memcmp(d0.data() + 3, d1.data() + 3, 8 * (c0 - 3)) ||
+                           !std::equal(i0.begin() + 3, i0.begin() + long(c0), i1.begin() + 3);
+                }
+        CHECK(bad == 0, "set %d: %zu near() calls differ from the portable kernel's", int(isa),
+              bad);
+        // rank: 1-64 candidates, distances from a few values (ties) or all distinct
+        bad = 0;
+        for (size_t cnt = 1; cnt <= 64; ++cnt)
+            for (int ties : {0, 1})
+                for (uint32_t k = 1; k <= cnt; k += (k < 4 ? 1 : 7)) {
+                    std::vector<double> d(cnt + 8);
+                    std::vector<uint32_t> ids(cnt);
+                    for (size_t a = 0; a < cnt; ++a) {
+                        d[a] = ties ? double(g() % 5) * 0.5 : U(g) * U(g);
+                        d[a] = d[a] < 0 ? -d[a] : d[a];
+                        ids[a] = uint32_t(cnt - a) * 3 + uint32_t(g() % 3);
+                    }
+                    std::vector<double> d0 = d, d1 = d;
+                    std::vector<uint32_t> r0(k, 0), r1(k, 0);
+                    double k0 = base.rank(d0.data(), ids.data(), cnt, k, r0.data());
+                    double k1 = kk.rank(d1.data(), ids.data(), cnt, k, r1.data());
+                    bad += k0 != k1 || r0 != r1;
+                }
+        CHECK(bad == 0, "set %d: %zu rank() calls differ from the portable kernel's", int(isa),
+              bad);
+        // whole tables
+        std::vector<double> p = sphere_points(3000, 23, 0.01);
+        for (int c = 0; c < 20; ++c) p.insert(p.end(), p.begin(), p.begin() + 3);
+        for (int a = 0; a < 6; ++a)
+            for (int b = 0; b < 6; ++b) p.insert(p.end(), {3.0 + a, 3.0 + b, 0.0});
+        const size_t m = p.size() / 3;
+        KnnTree tree(p.data(), m, 2);
+        for (uint32_t k : {1u, 8u, 15u, 31u, 33u, 70u})
+            for (int threads : {1, 3}) {
+                NeighbourTable t0 = knn_all(tree, p.data(), k, threads, nullptr, Isa::Base);
+                NeighbourTable t1 = knn_all(tree, p.data(), k, threads, nullptr, isa);
+                CHECK(t0.index == t1.index, "set %d, k %u, %d threads: table differs", int(isa), k,
+                      threads);
+                size_t wrong = 0;
+                for (size_t i = 0; i < m; i += 7) {
+                    std::vector<uint32_t> want = brute_row(p, i, k);
+                    wrong += !std::equal(want.begin(), want.end(), t1.row(i));
+                }
+                CHECK(wrong == 0, "set %d, k %u: %zu rows differ from brute force", int(isa), k,
+                      wrong);
+                std::vector<uint32_t> u0(m * t0.k), u1(m * t0.k);
+                knn_each(tree, p.data(), k, false, threads, nullptr,
+                         [&](uint32_t i, const uint32_t *row) {
+                             std::copy(row, row + t0.k, u0.begin() + long(i) * t0.k);
+                         }, Isa::Base);
+                knn_each(tree, p.data(), k, false, threads, nullptr,
+                         [&](uint32_t i, const uint32_t *row) {
+                             std::copy(row, row + t0.k, u1.begin() + long(i) * t0.k);
+                         }, isa);
+                CHECK(u0 == u1, "set %d, k %u, %d threads: unsorted rows differ", int(isa), k,
+                      threads);
+            }
+    }
+    bool threw = false;
+    try {
+        knn_kernels(Isa::Sse42);
+    } catch (const std::invalid_argument &) {
+        threw = true;
+    }
+    CHECK(threw, "knn_kernels(Sse42): no such kernels, expected invalid_argument");
+}
+
 int main() {
     test_knn_matches_brute_force();
+    test_knn_kernels_agree_with_the_portable_ones();
     test_unsorted_rows_and_fused_radii();
     test_radii_from_rows_equal_the_members_own();
     test_knn_within_groups_matches_brute_force();

@@ -11,6 +11,7 @@
 #include <limits>
 #include <vector>
 
+#include "pointviz/isa.h"
 #include "pointviz/progress.h"
 
 namespace pointviz {
@@ -92,7 +93,7 @@ public:
 
 private:
     friend void knn_each(const KnnTree &, const double *, uint32_t, bool, int, Progress *,
-                         const std::function<void(uint32_t, const uint32_t *)> &);
+                         const std::function<void(uint32_t, const uint32_t *)> &, Isa);
     /// first[l], first[l + 1]: the stored positions of leaf l (leaves numbered left to right).
     std::vector<uint32_t> leaf_ranges() const;
     /// Appends the leaves whose box lies within squared distance r2 of the box `b` (lo, hi).
@@ -121,16 +122,20 @@ struct NeighbourTable {
 };
 
 /// Fills a NeighbourTable for `points` (the same array the tree was built from), on `threads`
-/// workers. Polls `progress` (advancing it by the points done); throws Cancelled.
+/// workers. Polls `progress` (advancing it by the points done); throws Cancelled. `isa`: the
+/// instruction set of the search's inner loops (knn_kernels.h; Auto: the best available); the
+/// table is the same for every one.
 NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, int threads,
-                       Progress *progress = nullptr);
+                       Progress *progress = nullptr, Isa isa = Isa::Auto);
 
 /// The rows of knn_all (k is min(k, n - 1) as there) handed to `visit(i, row)` one point at a
 /// time instead of stored: a step that needs each point's neighbours once never holds the
 /// (n, k) table. `sorted` false: each row holds the same neighbours in no particular order
 /// (the selection skips its final sort). Calls come from `threads` workers at once, each point
-/// once; `row` is valid during the call only. Polls `progress`; throws Cancelled.
+/// once; `row` is valid during the call only. Polls `progress`; throws Cancelled. `isa` as for
+/// knn_all.
 void knn_each(const KnnTree &tree, const double *points, uint32_t k, bool sorted, int threads,
-              Progress *progress, const std::function<void(uint32_t, const uint32_t *)> &visit);
+              Progress *progress, const std::function<void(uint32_t, const uint32_t *)> &visit,
+              Isa isa = Isa::Auto);
 
 }  // namespace pointviz
