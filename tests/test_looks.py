@@ -145,6 +145,27 @@ def test_auto_exposure_edge_cases():
     assert auto_exposure(np.full((4, 4, 3), 1e-9)) == pytest.approx(8.0)
 
 
+def test_auto_exposure_averages_exactly_the_covered_pixels(rng):
+    """The covered pixels, gathered by a loop over the frame in row order, give the same
+    exposure to the last bit (same values in the same order), for C- and Fortran-ordered
+    frames, with non-finite pixels and with no pixel covered."""
+    for k in range(40):
+        h, w = rng.integers(1, 60, 2)
+        c = (rng.random((h, w, 3)) * rng.choice([0.01, 1.0, 10.0])).astype(np.float32)
+        c[rng.random((h, w)) < 0.05] = np.inf
+        oa = (rng.random((h, w)) < rng.random()).astype(np.float32) * rng.random()
+        if k % 2:
+            c = np.asfortranarray(c)
+        rows = [c[y, x] for y in range(h) for x in range(w) if oa[y, x] >= EXPOSURE_COVERAGE]
+        sel = np.array(rows if rows else [c[y, x] for y in range(h) for x in range(w)],
+                       dtype=np.float64)
+        lum = 0.2126 * sel[:, 0] + 0.7152 * sel[:, 1] + 0.0722 * sel[:, 2]
+        lum = lum[np.isfinite(lum)]
+        mean = float(lum.mean()) if lum.size else 0.0
+        want = float(np.clip(EXPOSURE_KEY / mean, 1 / 8, 8.0)) if mean > 0 else 1.0
+        assert auto_exposure(c, oa) == want
+
+
 def test_look_from_the_data_and_bad_names(rng):
     xy = rng.uniform(-50, 50, (20000, 2))
     terrain = pointviz.PointCloud(np.column_stack([xy, np.sin(xy[:, 0] / 9) * 2]), up=(0, 0, 1))
