@@ -120,7 +120,7 @@ inline int packet_key_ray(uint32_t active, uint32_t centre) {
 /// Sorts the used slots near first by the entry parameter of each slot's key ray (a guess at
 /// the shared order) and adds to `leave` the rays of `act` whose own order differs. Writes the
 /// order to `order`; returns how many slots.
-POINTVIZ_HOT_INLINE int packet_order(const PacketChildren &ch, uint32_t act, uint32_t centre, uint32_t &leave,
+inline int packet_order(const PacketChildren &ch, uint32_t act, uint32_t centre, uint32_t &leave,
                         uint32_t *order) {
     int n = 0;
     float key[kWideUsed];
@@ -175,7 +175,7 @@ inline PacketLanes<WideV> packet_lanes(const PacketRays &pr, uint32_t q) {
 
 /// Reports one lane's test over the packet's rays: entered, entry parameter, cones.
 template <class V, class M>
-POINTVIZ_HOT_INLINE void report_rays(M ok, V t, V cosv, float s, bool cull, uint32_t q, uint32_t lane,
+inline void report_rays(M ok, V t, V cosv, float s, bool cull, uint32_t q, uint32_t lane,
                         PacketHits &out) {
     out.hit[lane] |= movemask(ok) << q;
     store_lanes(t, out.t[lane] + q);
@@ -193,7 +193,7 @@ inline float cone_sine(uint16_t q) {
 /// Lane `lane` of sphere node `w` (its fields decoded as wide_lanes decodes them) against the
 /// packet's rays, its cone under culling.
 template <bool kSlabs>
-POINTVIZ_HOT_INLINE void packet_sphere_lane(const WideNode &w, uint32_t lane, const PacketRays &pr, bool cull,
+inline void packet_sphere_lane(const WideNode &w, uint32_t lane, const PacketRays &pr, bool cull,
                                PacketHits &out) {
     using V = WideV;
     const float ka = 1.f / kAxisScale;
@@ -213,7 +213,7 @@ POINTVIZ_HOT_INLINE void packet_sphere_lane(const WideNode &w, uint32_t lane, co
 }
 
 /// Lane `lane` of box node `w` against the packet's rays, its cone under culling.
-POINTVIZ_HOT_INLINE void packet_box_lane(const WideBoxNode &w, uint32_t lane, const PacketRays &pr, bool cull,
+inline void packet_box_lane(const WideBoxNode &w, uint32_t lane, const PacketRays &pr, bool cull,
                             PacketHits &out) {
     using V = WideV;
     const float ka = 1.f / kAxisScale;
@@ -233,14 +233,10 @@ POINTVIZ_HOT_INLINE void packet_box_lane(const WideBoxNode &w, uint32_t lane, co
     }
 }
 
-// The lane tests, the node test and the order are forced inline (and packet_traverse into its
-// two callers): with a caller each for closest and any hits the compiler would otherwise keep
-// them out of line, and closest-hit packets ran 5 % slower.
-
 /// Tests the packet's rays `act` against the bounds of one wide node (`test(lane)`): A and B,
 /// then the children of those of A and B that are interior and entered by some ray.
 template <class Test>
-POINTVIZ_HOT_INLINE void packet_node(const uint32_t *refs, uint32_t act, PacketHits &out, Test test) {
+inline void packet_node(const uint32_t *refs, uint32_t act, PacketHits &out, Test test) {
     for (uint32_t j = 0; j < 2; ++j) {
         test(j);
         const bool inner = !(refs[j] >> 27);
@@ -268,10 +264,9 @@ struct PacketResume {
 
 /// Ray r leaves the packet at a step whose children (`ch`) it would order otherwise: its own
 /// stack is the packet's entries it takes (`sp` on `pstack`, bottom first) and its children in
-/// its own order, from which the single-ray traversal finishes it. Kept out of line: inlined,
-/// the single-ray traversal it runs crowds the packet loop (5 % slower packets).
+/// its own order, from which the single-ray traversal finishes it.
 template <bool kSlabs>
-__attribute__((noinline)) void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
+inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
                          const LodGates &gates, bool cull, Gather &pol, int r,
                          const PacketEntry *pstack, int sp, const PacketChildren &ch) {
     StackEntry stack[kStackSize];
@@ -312,7 +307,7 @@ constexpr bool kOrderFree = std::is_same<Policy, AnyHit>::value;
 /// its search (early exit), and the packet ends when every ray has its answer. Returns the mask
 /// of the rays that neither left nor ended.
 template <bool kSlabs, class Policy>
-POINTVIZ_HOT_INLINE uint32_t packet_traverse(const SurfelTree &tree, const Ray *rays, int n, const TraceOptions &opt,
+uint32_t packet_traverse(const SurfelTree &tree, const Ray *rays, int n, const TraceOptions &opt,
                          const LodGates &gates, bool cull, Policy *pol, uint32_t centre) {
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
@@ -408,13 +403,11 @@ POINTVIZ_HOT_INLINE uint32_t packet_traverse(const SurfelTree &tree, const Ray *
             if (wide.box_level(e.depth)) {
                 const WideBoxNode &w = wide.box_node(wi);
                 refs = w.ref;
-                packet_node(refs, act, ph, [&](uint32_t lane) __attribute__((always_inline)) {
-                    packet_box_lane(w, lane, pr, cull, ph);
-                });
+                packet_node(refs, act, ph, [&](uint32_t lane) { packet_box_lane(w, lane, pr, cull, ph); });
             } else {
                 const WideNode &w = wide.node(wi);
                 refs = w.ref;
-                packet_node(refs, act, ph, [&](uint32_t lane) __attribute__((always_inline)) {
+                packet_node(refs, act, ph, [&](uint32_t lane) {
                     packet_sphere_lane<kSlabs>(w, lane, pr, cull, ph);
                 });
             }
