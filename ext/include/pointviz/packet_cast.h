@@ -1,9 +1,9 @@
 // pointviz — the batch queries (closest and any hits) that trace coherent groups of rays as
-// packets (packet_trace.h).
-// They live in their own translation unit (ext/src/packet_cast.cpp), compiled once per
-// instruction set as the single-ray kernels of ext/src/cast.cpp are, so that the single-ray
-// traversal there compiles exactly as it does without them; dispatch.cpp enters them once per
-// batch, and they take one chunk of rays at a time.
+// packets (packet_trace.h). They live in their own translation units (ext/src/packet_cast.cpp for
+// closest hits, ext/src/packet_occlude.cpp for any hits: together, the closest-hit loop's helpers
+// would no longer be inlined), compiled once per instruction set as the single-ray kernels of
+// ext/src/cast.cpp are, so that the single-ray traversal there compiles exactly as it does
+// without them; dispatch.cpp enters them once per batch, and they take one chunk of rays at a time.
 #pragma once
 
 #include <cstddef>
