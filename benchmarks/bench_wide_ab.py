@@ -89,7 +89,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--data", type=Path, default=common.default_data_dir(),
                    help="shared data folder (the dragon's scans)")
     p.add_argument("--no-packets", action="store_true",
-                   help="closest hits one ray at a time in builds that have packets")
+                   help="closest and any hits one ray at a time in builds that have packets")
     return p.parse_args(argv)
 
 

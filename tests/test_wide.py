@@ -126,6 +126,23 @@ def _packets_and_single(scene, rays, **cast_kw):
     return p, s
 
 
+def _any_packets_and_single(scene, rays, t_max, **kw):
+    """Any hits without statistics (the path packets take), packets on and off."""
+    scene._options.packets = True
+    p = scene.occluded(rays, t_max, stats=False, **kw)
+    scene._options.packets = False
+    s = scene.occluded(rays, t_max, stats=False, **kw)
+    scene._options.packets = True
+    return p, s
+
+
+def _t_max_around(t, seed):
+    """tmax per ray: before or beyond the closest hit, far or infinite on misses."""
+    rng = np.random.default_rng(seed)
+    far = np.where(rng.random(len(t)) < 0.5, np.inf, 10.0)
+    return np.where(np.isfinite(t), t * rng.uniform(0.5, 1.5, len(t)), far).astype(np.float32)
+
+
 @pytest.mark.parametrize("shape", ["sphere", "torus"])
 def test_packets_equal_single_rays_on_camera_grids(shape):
     """Camera rays in raster order traverse in packets (packet_trace.h): every output equals
@@ -136,7 +153,7 @@ def test_packets_equal_single_rays_on_camera_grids(shape):
              ((0.0, 0.0, 0.3), (0.0, 1.0, 0.0), 20.0)]     # from inside (the sphere) / the hole
     for variant, cull in (("full", True), ("full", False), ("lod", False), ("bvh", False)):
         scene = SurfelScene(cloud, variant=variant, cull=cull)
-        hits = []
+        hits, mixed = [], 0
         for eye, target, fov in views:
             cam = Camera.look_at(eye, target, fov_deg=fov, width=96, height=64)
             rays = cam.rays()
@@ -149,8 +166,15 @@ def test_packets_equal_single_rays_on_camera_grids(shape):
                 p, s = _packets_and_single(scene, r)
                 for k in s:
                     np.testing.assert_array_equal(p[k], s[k], err_msg=f"{variant} {eye} {name} {k}")
+                # any hits of the same rays, tmax per ray, with and without t_min
+                t_max = _t_max_around(s["t_hit"], len(r))
+                for t_min in (0.0, 0.05):
+                    pa, sa = _any_packets_and_single(scene, r, t_max, t_min=t_min)
+                    np.testing.assert_array_equal(pa, sa, err_msg=f"{variant} {eye} {name} any")
+                    mixed += bool(0 < sa.sum() < len(sa))
             hits.append(np.isfinite(s["t_hit"]).mean())
         assert 0.05 < hits[0] < 0.95 and max(hits[1:]) > 0.05, hits
+        assert mixed >= 10, mixed  # any hits and misses in most ray sets
 
 
 def test_packets_leave_lod_and_incoherent_rays_alone(rng):
@@ -167,4 +191,10 @@ def test_packets_leave_lod_and_incoherent_rays_alone(rng):
     p, s = _packets_and_single(scene, scattered)
     for k in s:
         np.testing.assert_array_equal(p[k], s[k])
+    for r in (rays, scattered):
+        t_max = _t_max_around(scene.cast_rays(r)["t_hit"], 7)
+        pa, sa = _any_packets_and_single(scene, r, t_max, pixel_angle=0.01)
+        np.testing.assert_array_equal(pa, sa)
+        pa, sa = _any_packets_and_single(scene, r, t_max)
+        np.testing.assert_array_equal(pa, sa)
     assert scene.trace_options().packets

@@ -131,6 +131,8 @@ const QueryKernels &POINTVIZ_KERNELS() {
                                 &POINTVIZ_ISA_NS::occluded_batch<double>,
                                 &POINTVIZ_ISA_NS::cast_packets<float>,
                                 &POINTVIZ_ISA_NS::cast_packets<double>,
+                                &POINTVIZ_ISA_NS::occluded_packets<float>,
+                                &POINTVIZ_ISA_NS::occluded_packets<double>,
                                 &POINTVIZ_ISA_NS::intersect_local,
                                 &POINTVIZ_ISA_NS::occlude_local};
     return k;

@@ -88,7 +88,7 @@ const QueryKernels &query_kernels(Isa isa) {
 
 namespace {
 
-/// Whether a batch of closest hits goes to the packet kernels (packet_cast.h): asked for, no
+/// Whether a batch of closest or any hits goes to the packet kernels (packet_cast.h): asked for, no
 /// statistics, and the wide traversal serves it.
 bool by_packets(const SurfelTree &tree, const TraceOptions &opt, bool count) {
     return opt.packets && !count && use_wide(tree, opt);
@@ -113,11 +113,19 @@ void cast_with(const QueryKernels &k, const SurfelTree &tree, const double *rays
 void occluded_with(const QueryKernels &k, const SurfelTree &tree, const float *rays,
                    const float *t_max, size_t n, const TraceOptions &opt, float t_min,
                    float pixel_angle, int threads, uint8_t *hit, bool count, BatchStats &stats) {
+    if (by_packets(tree, opt, count) &&
+        k.occluded_packets_f32(tree, rays, t_max, n, opt, t_min, pixel_angle, threads, hit, count,
+                               stats))
+        return;
     k.occluded_f32(tree, rays, t_max, n, opt, t_min, pixel_angle, threads, hit, count, stats);
 }
 void occluded_with(const QueryKernels &k, const SurfelTree &tree, const double *rays,
                    const float *t_max, size_t n, const TraceOptions &opt, float t_min,
                    float pixel_angle, int threads, uint8_t *hit, bool count, BatchStats &stats) {
+    if (by_packets(tree, opt, count) &&
+        k.occluded_packets_f64(tree, rays, t_max, n, opt, t_min, pixel_angle, threads, hit, count,
+                               stats))
+        return;
     k.occluded_f64(tree, rays, t_max, n, opt, t_min, pixel_angle, threads, hit, count, stats);
 }
 

@@ -13,7 +13,9 @@
 //   (t, normal, colour, radius, surfel, count) on primary grids with holes and silhouettes, rays
 //   from inside, axis-aligned (degenerate) directions, with culling, slabs, boxes and
 //   interpolation on and off, for every instruction set (through cast_rays: 2x4 blocks of the
-//   grid's rows) and the portable kernels directly.
+//   grid's rows) and the portable kernels directly; any hits of the same groups (occluded and
+//   the portable kernels, tmax per ray inside and beyond the surface, t_min on and off, culling
+//   on and off) equal one ray at a time's.
 // The brute-force checks of core_tests run the default traversal, which is the wide one.
 //
 // Random cases are seeded by their index; a failure prints the case to replay.
@@ -389,7 +391,7 @@ void test_packets_equal_single_rays() {
     // at the rim (silhouettes)
     const double eyes[4][3] = {{3.1, -2.2, 1.3}, {0.0, 0.0, 4.0}, {0.05, -0.1, 0.02}, {0.0, 0.0, 4.0}};
     const double ats[4][3] = {{0.1, 0.2, -0.1}, {0.0, 0.0, 0.0}, {1.0, 0.3, 0.2}, {0.99, 0.0, 0.0}};
-    size_t kept = 0, total = 0, kept_block = 0, total_block = 0;
+    size_t kept = 0, total = 0, kept_block = 0, total_block = 0, any_total = 0, any_hits = 0;
     constexpr size_t kGridW = 37, kGridH = 23;
     for (int si = 0; si < 3; ++si)
         for (uint32_t leaf : {4u, 8u})
@@ -411,6 +413,22 @@ void test_packets_equal_single_rays() {
                             o.packets = false;
                             o.isa = Isa::Base;
                             const Result single = run_closest(tree, rays, o, 0.f, false);
+                            // Any hits: tmax per ray around the closest hit (before it, beyond
+                            // it), far or infinite on misses, one NaN (an invalid ray: its
+                            // group goes one ray at a time); t_min on in one variant.
+                            const size_t nr = rays.size() / 6;
+                            std::vector<float> tmax(nr);
+                            for (size_t i = 0; i < nr; ++i) {
+                                const float t = single.t[i];
+                                tmax[i] = std::isfinite(t) ? t * (0.5f + float((i * 37) % 100) / 100.f)
+                                                           : (i % 3 == 0 ? kInf : 5.f);
+                            }
+                            tmax[nr / 2] = std::numeric_limits<float>::quiet_NaN();
+                            const float t_min = variant == 2 ? 0.05f : 0.f;
+                            std::vector<uint8_t> occ_single(nr), occ(nr);
+                            BatchStats os;
+                            occluded(tree, rays.data(), tmax.data(), nr, o, t_min, 0.f, 2,
+                                     occ_single.data(), false, os);
                             o.packets = true;
                             for (Isa isa : available_isas()) {
                                 o.isa = isa;
@@ -424,6 +442,14 @@ void test_packets_equal_single_rays() {
                                       "shape %d leaf %u box depth %u eye %d fov %.2f variant %d %s: "
                                       "packets differ from single rays", si, leaf, box_depth, ei,
                                       fov, variant, isa_name(isa));
+                                BatchStats ps;
+                                occluded(tree, rays.data(), tmax.data(), nr, o, t_min, 0.f, 2,
+                                         occ.data(), false, ps);
+                                CHECK(occ == occ_single && ps.hits == os.hits && ps.invalid == os.invalid &&
+                                          ps.first_invalid == os.first_invalid && ps.rays == os.rays,
+                                      "shape %d leaf %u box depth %u eye %d fov %.2f variant %d %s: "
+                                      "packet any hits differ from single rays", si, leaf, box_depth,
+                                      ei, fov, variant, isa_name(isa));
                             }
                             // The portable kernels directly, on groups of eight in a row and
                             // on blocks of 2x4 pixels (what cast_rays makes of rows of rays in
@@ -457,6 +483,30 @@ void test_packets_equal_single_rays() {
                                           "shape %d leaf %u eye %d variant %d ray %zu: packet differs",
                                           si, leaf, ei, variant, idx[k]);
                                 }
+                                // Any hits, culling as the variant says and the other way.
+                                Ray a[kPacket];
+                                for (int k = 0; k < kPacket; ++k) {
+                                    const float tm = tmax[idx[k]];
+                                    a[k] = r[k];
+                                    a[k].tmin = t_min;
+                                    a[k].tmax = std::isnan(tm) ? kInf : tm;
+                                }
+                                if (!packet_covers(tree, a, kPacket, o, false)) return;
+                                for (bool cull : {o.cull, !o.cull}) {
+                                    uint8_t ah[kPacket];
+                                    const uint32_t mask =
+                                        o.slabs ? any_hits_packet_impl<true>(tree, a, kPacket, o, gates, cull, ah, centre)
+                                                : any_hits_packet_impl<false>(tree, a, kPacket, o, gates, cull, ah, centre);
+                                    for (int k = 0; k < kPacket; ++k) {
+                                        NoStats ns;
+                                        const bool one = any_hit(tree, a[k], o, gates, cull, ns);
+                                        any_total += 1;
+                                        any_hits += one;
+                                        CHECK(one == (ah[k] != 0) && one == (((mask >> k) & 1u) != 0),
+                                              "shape %d leaf %u eye %d variant %d cull %d ray %zu: "
+                                              "packet any hit differs", si, leaf, ei, variant, int(cull), idx[k]);
+                                    }
+                                }
                             };
                             size_t idx[kPacket];
                             for (size_t g = 0; g + kPacket <= rays.size() / 6; g += kPacket) {
@@ -476,6 +526,9 @@ void test_packets_equal_single_rays() {
     CHECK(total > 0 && kept * 2 > total, "packets ran: %zu of %zu rays stayed in theirs", kept, total);
     CHECK(total_block > 0 && kept_block * 2 > total_block,
           "2x4 packets ran: %zu of %zu rays stayed in theirs", kept_block, total_block);
+    CHECK(any_total > 0 && any_hits > any_total / 10 && any_hits < any_total - any_total / 10,
+          "packet any hits ran on hits and misses: %zu of %zu", any_hits, any_total);
+    std::printf("wide_tests: %zu of %zu packet any hits hit\n", any_hits, any_total);
     std::printf("wide_tests: %zu of %zu rays stayed in their packet of 8x1, %zu of %zu of 2x4\n",
                 kept, total, kept_block, total_block);
 }

@@ -55,7 +55,8 @@ void merge(BatchStats &into, const BatchStats &s, std::mutex &m) {
     into.max_depth = std::max(into.max_depth, s.max_depth);
 }
 
-void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, double len,
+// Unused by the any-hit units (ext/src/packet_occlude.cpp).
+[[maybe_unused]] void write_hit(const CastOutput &out, size_t i, bool hit, const SurfaceHit &h, double len,
                const double *rd, const SurfelTree &tree) {
     const float inf = kInf;
     if (out.t) out.t[i] = hit ? float(double(h.t) / len) : inf;

@@ -30,6 +30,13 @@ struct QueryKernels {
                              float, int, CastOutput, bool, BatchStats &);
     bool (*cast_packets_f64)(const SurfelTree &, const double *, size_t, const TraceOptions &,
                              float, int, CastOutput, bool, BatchStats &);
+    /// occluded_f32 / occluded_f64 the same way (packet_cast.h).
+    bool (*occluded_packets_f32)(const SurfelTree &, const float *, const float *, size_t,
+                                 const TraceOptions &, float, float, int, uint8_t *, bool,
+                                 BatchStats &);
+    bool (*occluded_packets_f64)(const SurfelTree &, const double *, const float *, size_t,
+                                 const TraceOptions &, float, float, int, uint8_t *, bool,
+                                 BatchStats &);
     /// Closest hits of local rays shifted by `offset` (the renderer's batches; one thread).
     void (*intersect)(const SurfelTree &, const Ray *, size_t, Vec3 offset, const TraceOptions &,
                       SurfaceHit *);

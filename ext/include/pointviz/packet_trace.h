@@ -1,4 +1,4 @@
-// pointviz — packets of coherent rays traversing the wide tree together, for closest hits.
+// pointviz — packets of coherent rays traversing the wide tree together, for closest and any hits.
 //
 // Up to kPacket rays (camera rays of neighbouring pixels: one origin, directions within
 // kPacketMinCos of the first) walk the wide tree (wide.h) as one, with the rays in the SIMD
@@ -20,14 +20,20 @@
 // own order. Either way a ray sees exactly the single-ray sequence of nodes, leaves and
 // far-bound tests.
 //
+// Any hits take the same packet traversal (any_hits_packet): the answer of a ray does not depend
+// on the order of the leaves (its far bound never moves), so no ray leaves the packet; a ray
+// that finds a disk drops out of the packet's masks (early exit per ray), and the packet ends
+// when every ray has its answer.
+//
 // Not covered (the caller takes the single-ray path): level of detail (rays with a footprint
 // under TraceOptions::lod), statistics, the binary traversal (TraceOptions::wide false or a box
-// depth the wide nodes were not built for), any hit, and groups that are not coherent (different
-// origins or tmin, directions spread beyond kPacketMinCos).
+// depth the wide nodes were not built for), and groups that are not coherent (different
+// origins, or tmin for closest hits; directions spread beyond kPacketMinCos).
 #pragma once
 
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 
 #include "pointviz/isa.h"
 #include "pointviz/trace.h"
@@ -261,8 +267,8 @@ struct PacketResume {
 /// its own order, from which the single-ray traversal finishes it.
 template <bool kSlabs>
 inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOptions &opt,
-                         const LodGates &gates, Gather &pol, int r, const PacketEntry *pstack,
-                         int sp, const PacketChildren &ch) {
+                         const LodGates &gates, bool cull, Gather &pol, int r,
+                         const PacketEntry *pstack, int sp, const PacketChildren &ch) {
     StackEntry stack[kStackSize];
     int n = 0;
     const uint32_t bit = 1u << r;
@@ -284,28 +290,27 @@ inline void leave_packet(const SurfelTree &tree, const Ray &ray, const TraceOpti
     }
     for (int i = k - 1; i > 0; --i) stack[n++] = entry(ch.c[order[i]]);
     NoStats ns;
-    traverse_wide_impl<kSlabs>(tree, ray, opt, gates, opt.cull, pol, ns,
+    traverse_wide_impl<kSlabs>(tree, ray, opt, gates, cull, pol, ns,
                                PacketResume{stack, n, entry(ch.c[order[0]])});
 }
 
-}  // namespace detail
+/// Whether a policy's answer is the same in any order of the leaves (any hit: its far bound
+/// never moves, so a ray reaches the same leaves whatever the order, and the answer is whether
+/// one of them holds a disk in range). Such rays never leave their packet.
+template <class Policy>
+constexpr bool kOrderFree = std::is_same<Policy, AnyHit>::value;
 
-/// Closest hits of `n` <= kPacket rays traversed as one packet (no level of detail, no
-/// statistics; use_wide(tree, opt) must hold); `centre`: the packet's middle rays. A ray whose
-/// order of children differs from the packet's leaves it there and finishes alone
-/// (leave_packet). Returns the mask of the rays that stayed in the packet to the end.
-template <bool kSlabs>
-uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n,
-                                  const TraceOptions &opt, const LodGates &gates, SurfaceHit *out,
-                                  uint32_t centre = kRowCentre) {
-    using namespace detail;
+/// The packet traversal of rays [0, n) with one policy per ray (`pol`, kPacket of them: those
+/// past n repeat ray 0's and are ignored), back-face culling when `cull`. Closest hits (Gather):
+/// a ray whose order of children differs from the packet's leaves it there and finishes alone
+/// (leave_packet). Any hits (kOrderFree): a ray leaves the packet's masks once its policy ends
+/// its search (early exit), and the packet ends when every ray has its answer. Returns the mask
+/// of the rays that neither left nor ended.
+template <bool kSlabs, class Policy>
+uint32_t packet_traverse(const SurfelTree &tree, const Ray *rays, int n, const TraceOptions &opt,
+                         const LodGates &gates, bool cull, Policy *pol, uint32_t centre) {
     const auto &nodes = tree.nodes();
     const WideTree &wide = tree.wide();
-    alignas(64) Gather pol[kPacket] = {
-        {rays[0].tmax, opt.window}, {n > 1 ? rays[1].tmax : 0.f, opt.window},
-        {n > 2 ? rays[2].tmax : 0.f, opt.window}, {n > 3 ? rays[3].tmax : 0.f, opt.window},
-        {n > 4 ? rays[4].tmax : 0.f, opt.window}, {n > 5 ? rays[5].tmax : 0.f, opt.window},
-        {n > 6 ? rays[6].tmax : 0.f, opt.window}, {n > 7 ? rays[7].tmax : 0.f, opt.window}};
     PacketRays pr;
     Vec3 inv_d[kPacket];
     PacketEntry e;
@@ -327,7 +332,7 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         e.t[r] = enter_bound<kSlabs>(tree, 0, 0, ray, inv_d[r], pol[r].tfar(), opt.box_depth);
         if (e.t[r] != kInf) e.active |= uint8_t(1u << r);
     }
-    e.cull = opt.cull ? e.active : 0;
+    e.cull = cull ? e.active : 0;
     uint32_t alive = (1u << n) - 1u;
     NoStats ns;
 
@@ -342,8 +347,9 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
             if (e.ref >> 27) {
                 for (uint32_t m = act; m != 0; m &= m - 1) {
                     const int r = __builtin_ctz(m);
-                    visit_leaf(tree, e.ref & (kMaxTreeSurfels - 1), e.ref >> 27, rays[r],
-                               ((cullm >> r) & 1u) != 0, pol[r], ns);
+                    const bool ends = visit_leaf(tree, e.ref & (kMaxTreeSurfels - 1), e.ref >> 27,
+                                                 rays[r], ((cullm >> r) & 1u) != 0, pol[r], ns);
+                    if constexpr (kOrderFree<Policy>) alive &= ends ? ~(1u << r) : ~0u;
                     pr.tfar[r] = pol[r].tfar();
                 }
             } else {
@@ -363,8 +369,9 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
             } else if (nd.is_leaf()) {
                 for (uint32_t m = act; m != 0; m &= m - 1) {
                     const int r = __builtin_ctz(m);
-                    visit_leaf(tree, nd.index(), nd.count(), rays[r], ((cullm >> r) & 1u) != 0,
-                               pol[r], ns);
+                    const bool ends = visit_leaf(tree, nd.index(), nd.count(), rays[r],
+                                                 ((cullm >> r) & 1u) != 0, pol[r], ns);
+                    if constexpr (kOrderFree<Policy>) alive &= ends ? ~(1u << r) : ~0u;
                     pr.tfar[r] = pol[r].tfar();
                 }
             } else if (wide.has(e.node)) {
@@ -441,12 +448,15 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         if (ch.used) {
             uint32_t order[kWideUsed];
             uint32_t leave = 0;
-            const int k = packet_order(ch, act, centre, leave, order);
-            for (uint32_t m = leave; m != 0; m &= m - 1) {
-                const int r = __builtin_ctz(m);
-                leave_packet<kSlabs>(tree, rays[r], opt, gates, pol[r], r, stack, sp, ch);
+            // Any hits: near first for an early exit, the order any; no ray leaves.
+            const int k = packet_order(ch, kOrderFree<Policy> ? 0u : act, centre, leave, order);
+            if constexpr (!kOrderFree<Policy>) {
+                for (uint32_t m = leave; m != 0; m &= m - 1) {
+                    const int r = __builtin_ctz(m);
+                    leave_packet<kSlabs>(tree, rays[r], opt, gates, cull, pol[r], r, stack, sp, ch);
+                }
+                alive &= ~leave;
             }
-            alive &= ~leave;
             for (int i = k - 1; i >= 0; --i) {
                 PacketEntry &x = ch.c[order[i]];
                 x.active &= uint8_t(alive);
@@ -459,7 +469,7 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
         }
         if (have) continue;
         // Pop the nearest pending entry that can still hold a closer hit for some ray.
-        while (sp > 0) {
+        while (sp > 0 && (!kOrderFree<Policy> || alive)) {
             e = stack[--sp];
             uint32_t far = 0;
             for (uint32_t q = 0; q < uint32_t(kPacket); q += kWideStep)
@@ -473,20 +483,64 @@ uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n
             }
         }
     }
+    return alive;
+}
+
+}  // namespace detail
+
+/// Closest hits of `n` <= kPacket rays traversed as one packet (no level of detail, no
+/// statistics; use_wide(tree, opt) must hold); `centre`: the packet's middle rays. A ray whose
+/// order of children differs from the packet's leaves it there and finishes alone
+/// (leave_packet). Returns the mask of the rays that stayed in the packet to the end.
+template <bool kSlabs>
+uint32_t closest_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n,
+                                  const TraceOptions &opt, const LodGates &gates, SurfaceHit *out,
+                                  uint32_t centre = kRowCentre) {
+    using namespace detail;
+    alignas(64) Gather pol[kPacket] = {
+        {rays[0].tmax, opt.window}, {n > 1 ? rays[1].tmax : 0.f, opt.window},
+        {n > 2 ? rays[2].tmax : 0.f, opt.window}, {n > 3 ? rays[3].tmax : 0.f, opt.window},
+        {n > 4 ? rays[4].tmax : 0.f, opt.window}, {n > 5 ? rays[5].tmax : 0.f, opt.window},
+        {n > 6 ? rays[6].tmax : 0.f, opt.window}, {n > 7 ? rays[7].tmax : 0.f, opt.window}};
+    const uint32_t alive = packet_traverse<kSlabs>(tree, rays, n, opt, gates, opt.cull, pol, centre);
     for (int r = 0; r < n; ++r) finish_closest(tree, opt, pol[r], out[r]);
     return alive;
 }
 
+/// Any hits in [tmin, tmax] of `n` <= kPacket rays traversed as one packet (no level of
+/// detail, no statistics; use_wide(tree, opt) must hold), back-face culling when `cull`:
+/// hit[r] as any_hit's for ray r. No ray leaves the packet. Returns the mask of the rays hit.
+template <bool kSlabs>
+uint32_t any_hits_packet_impl(const SurfelTree &tree, const Ray *rays, int n,
+                              const TraceOptions &opt, const LodGates &gates, bool cull,
+                              uint8_t *hit, uint32_t centre = kRowCentre) {
+    using namespace detail;
+    AnyHit pol[kPacket] = {AnyHit(rays[0].tmax),      AnyHit(n > 1 ? rays[1].tmax : 0.f),
+                           AnyHit(n > 2 ? rays[2].tmax : 0.f), AnyHit(n > 3 ? rays[3].tmax : 0.f),
+                           AnyHit(n > 4 ? rays[4].tmax : 0.f), AnyHit(n > 5 ? rays[5].tmax : 0.f),
+                           AnyHit(n > 6 ? rays[6].tmax : 0.f), AnyHit(n > 7 ? rays[7].tmax : 0.f)};
+    packet_traverse<kSlabs>(tree, rays, n, opt, gates, cull, pol, centre);
+    uint32_t mask = 0;
+    for (int r = 0; r < n; ++r) {
+        hit[r] = pol[r].hit;
+        mask |= uint32_t(pol[r].hit) << r;
+    }
+    return mask;
+}
+
 /// Whether rays [0, n) may take closest_hits_packet: the options are covered (wide traversal,
 /// no level of detail for these rays) and the rays are coherent (one origin and tmin,
-/// directions within kPacketMinCos of the first).
-inline bool packet_covers(const SurfelTree &tree, const Ray *rays, int n, const TraceOptions &opt) {
+/// directions within kPacketMinCos of the first). `one_tmin` false: any_hits_packet's rays,
+/// whose tmin may differ (occluded scales one t_min by each ray's direction length).
+inline bool packet_covers(const SurfelTree &tree, const Ray *rays, int n, const TraceOptions &opt,
+                          bool one_tmin = true) {
     if (n < 2 || !use_wide(tree, opt)) return false;
     const Ray &f = rays[0];
     for (int r = 0; r < n; ++r) {
         const Ray &x = rays[r];
         if (opt.lod && (x.spread > 0.f || x.width0 > 0.f)) return false;
-        if (!(x.o.x == f.o.x && x.o.y == f.o.y && x.o.z == f.o.z && x.tmin == f.tmin)) return false;
+        if (!(x.o.x == f.o.x && x.o.y == f.o.y && x.o.z == f.o.z)) return false;
+        if (one_tmin && !(x.tmin == f.tmin)) return false;
         if (!(dot(x.d, f.d) >= kPacketMinCos)) return false;
     }
     return true;
@@ -499,6 +553,15 @@ inline void closest_hits_packet(const SurfelTree &tree, const Ray *rays, int n,
                                 uint32_t centre = kRowCentre) {
     if (opt.slabs) closest_hits_packet_impl<true>(tree, rays, n, opt, gates, out, centre);
     else closest_hits_packet_impl<false>(tree, rays, n, opt, gates, out, centre);
+}
+
+/// Any hits of `n` <= kPacket rays that packet_covers (one_tmin false), two-sided unless
+/// `cull`: traversed as one packet. hit[r] equals any_hit's for every ray.
+inline void any_hits_packet(const SurfelTree &tree, const Ray *rays, int n,
+                            const TraceOptions &opt, const LodGates &gates, bool cull,
+                            uint8_t *hit, uint32_t centre = kRowCentre) {
+    if (opt.slabs) any_hits_packet_impl<true>(tree, rays, n, opt, gates, cull, hit, centre);
+    else any_hits_packet_impl<false>(tree, rays, n, opt, gates, cull, hit, centre);
 }
 
 POINTVIZ_ISA_END
