@@ -390,14 +390,7 @@ void kd_batch(const KdTree &tree, const T *rays, size_t n, int threads, BatchSta
         }
         local.rays = e - b;
         std::lock_guard<std::mutex> lock(mu);
-        stats.nodes += local.nodes;
-        stats.disks += local.disks;
-        stats.depth_sum += local.depth_sum;
-        stats.hits += local.hits;
-        stats.rays += local.rays;
-        stats.invalid += local.invalid;
-        stats.first_invalid = std::min(stats.first_invalid, local.first_invalid);
-        stats.max_depth = std::max(stats.max_depth, local.max_depth);
+        stats.add(local);
     });
 }
 

@@ -1,6 +1,7 @@
 // pointviz — batched ray queries on a tree, in world coordinates, over all cores.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 
@@ -27,6 +28,18 @@ struct BatchStats {
     size_t rays = 0;
     size_t invalid = 0;                 ///< rays with NaN/inf or a zero direction
     size_t first_invalid = size_t(-1);  ///< lowest index of such a ray
+
+    /// Adds another part of the batch's sums (a worker's rays).
+    void add(const BatchStats &o) {
+        nodes += o.nodes;
+        disks += o.disks;
+        depth_sum += o.depth_sum;
+        hits += o.hits;
+        rays += o.rays;
+        invalid += o.invalid;
+        first_invalid = std::min(first_invalid, o.first_invalid);
+        max_depth = std::max(max_depth, o.max_depth);
+    }
 };
 
 /// Rays in world coordinates, (n, 6) of float or double: origin, direction (any non-zero

@@ -45,14 +45,7 @@ inline double local_ray(const SurfelTree &tree, const T *r, Ray &ray) {
 
 void merge(BatchStats &into, const BatchStats &s, std::mutex &m) {
     std::lock_guard<std::mutex> lock(m);
-    into.nodes += s.nodes;
-    into.disks += s.disks;
-    into.depth_sum += s.depth_sum;
-    into.hits += s.hits;
-    into.rays += s.rays;
-    into.invalid += s.invalid;
-    into.first_invalid = std::min(into.first_invalid, s.first_invalid);
-    into.max_depth = std::max(into.max_depth, s.max_depth);
+    into.add(s);
 }
 
 // Unused by the any-hit units (ext/src/packet_occlude.cpp).
