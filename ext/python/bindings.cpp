@@ -426,8 +426,8 @@ auto run_step(Fn &&fn) {
     return fn(progress);
 }
 
-template <class T>
-nb::ndarray<nb::numpy, T> to_array(const std::vector<T> &v, std::initializer_list<size_t> shape) {
+template <class T, class A>
+nb::ndarray<nb::numpy, T> to_array(const std::vector<T, A> &v, std::initializer_list<size_t> shape) {
     T *d;
     auto a = new_array<T>(shape, &d);
     std::copy(v.begin(), v.end(), d);

@@ -2,9 +2,12 @@
 #include "pointviz/preprocess.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <exception>
 #include <thread>
+
+#include "pointviz/parallel.h"
 
 
 namespace pointviz {
@@ -43,28 +46,25 @@ double median(std::vector<double> v) {
 /// memory: the per-point steps (normals, fit, radii) read neighbours from cache instead of from
 /// anywhere in the input (2x faster on scans stored scan by scan).
 struct Spatial {
-    std::vector<uint32_t> perm;          ///< perm[r]: input index of the point stored at r
+    UnfilledVector<uint32_t> perm;       ///< perm[r]: input index of the point stored at r
     std::vector<double> viewpoints;
     std::vector<int32_t> group, cell;
     PointsView view;
     KnnTree tree;
+    int threads;
 
-    Spatial(const PointsView &in, int threads, Progress &progress)
-        : tree(in.points, in.n, threads, &progress) {
+    Spatial(const PointsView &in, int threads_, Progress &progress)
+        : tree(in.points, in.n, threads_, &progress), threads(threads_) {
         perm = tree.order();
         tree.renumber_in_tree_order();
         view = in;
         view.points = tree.stored_points().data();  // the tree's own copy, in its order
         if (in.viewpoints && in.n_viewpoints == in.n && in.n > 1) {
-            viewpoints.resize(3 * in.n);
-            for (size_t r = 0; r < in.n; ++r)
-                for (int a = 0; a < 3; ++a)
-                    viewpoints[3 * r + a] = in.viewpoints[3 * size_t(perm[r]) + a];
+            viewpoints = to_tree(in.viewpoints, 3);
             view.viewpoints = viewpoints.data();
         }
         if (in.group) {
-            group.resize(in.n);
-            for (size_t r = 0; r < in.n; ++r) group[r] = in.group[perm[r]];
+            group = to_tree(in.group);
             view.group = group.data();
         }
         if (in.cell) {
@@ -72,22 +72,31 @@ struct Spatial {
             view.cell = cell.data();
         }
     }
-    /// `rows` values per point, from tree order to input order.
+    /// `rows` values per point, from tree order to input order (on the workers: one thread
+    /// would leave the other cores idle).
     template <class T>
     std::vector<T> to_input(const std::vector<T> &v, size_t rows = 1) const {
         std::vector<T> out(v.size());
-        for (size_t r = 0; r < perm.size(); ++r)
-            for (size_t a = 0; a < rows; ++a) out[rows * size_t(perm[r]) + a] = v[rows * r + a];
+        parallel_for(perm.size(), kGrain, threads, [&](size_t b, size_t e, int) {
+            for (size_t r = b; r < e; ++r)
+                for (size_t a = 0; a < rows; ++a)
+                    out[rows * size_t(perm[r]) + a] = v[rows * r + a];
+        });
         return out;
     }
     /// `rows` values per point, from input order to tree order.
     template <class T>
     std::vector<T> to_tree(const T *v, size_t rows = 1) const {
         std::vector<T> out(rows * perm.size());
-        for (size_t r = 0; r < perm.size(); ++r)
-            for (size_t a = 0; a < rows; ++a) out[rows * r + a] = v[rows * size_t(perm[r]) + a];
+        parallel_for(perm.size(), kGrain, threads, [&](size_t b, size_t e, int) {
+            for (size_t r = b; r < e; ++r)
+                for (size_t a = 0; a < rows; ++a)
+                    out[rows * r + a] = v[rows * size_t(perm[r]) + a];
+        });
         return out;
     }
+    /// Points per chunk of the reorderings.
+    static constexpr size_t kGrain = size_t(1) << 15;
 };
 
 void normals_to_input(const Spatial &sp, NormalsOutput &o) {
@@ -132,7 +141,7 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     }
     if (in.viewpoints)
         out.toward_viewpoint_flips = orient_toward(in.points, out.est.normals.data(), in.n,
-                                                   in.viewpoints, in.n_viewpoints);
+                                                   in.viewpoints, in.n_viewpoints, nopt.threads);
     else
         out.orient = orient_mst(in.points, out.est.normals.data(), *t, oopt, &progress);
     return out;
@@ -152,7 +161,8 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
                            int threads, Progress &progress) {
     OrientResult r;
     if (in.viewpoints) {
-        r.flipped = orient_toward(in.points, normals, in.n, in.viewpoints, in.n_viewpoints);
+        r.flipped = orient_toward(in.points, normals, in.n, in.viewpoints, in.n_viewpoints,
+                                  threads);
         return r;
     }
     KnnTree tree(in.points, in.n, threads, &progress);
@@ -223,9 +233,16 @@ FitOutput fit_points(const PointsView &in, const float *normals, const NormalOpt
     if (sopt) {
         stray_worker.join();
         if (stray_error) std::rethrow_exception(stray_error);
-        for (size_t i = 0; i < v.n; ++i)
-            if (out.stray.stray[i]) f.keep[i] = 0;
-        f.kept = size_t(std::count(f.keep.begin(), f.keep.end(), uint8_t(1)));
+        std::atomic<size_t> kept{0};
+        parallel_for(v.n, Spatial::kGrain, fopt.threads, [&](size_t b, size_t e, int) {
+            size_t c = 0;
+            for (size_t i = b; i < e; ++i) {
+                f.keep[i] &= uint8_t(!out.stray.stray[i]);
+                c += f.keep[i];
+            }
+            kept.fetch_add(c, std::memory_order_relaxed);
+        });
+        f.kept = kept.load();
         out.stray.stray = sp.to_input(out.stray.stray);
         out.stray.label = sp.to_input(out.stray.label);
     }

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <memory>
 
+#include "pointviz/default_init.h"
 #include "pointviz/parallel.h"
 #include "pointviz/pca.h"
 
@@ -352,11 +353,16 @@ std::vector<uint8_t> thin_greedy(const double *points, const NeighbourTable &nb,
     // and the rest are visited in order. State per point: open, kept, dropped (points outside
     // `among` start dropped, as the serial visit never keeps them).
     enum : uint8_t { kOpen = 0, kKept = 1, kDropped = 2 };
+    constexpr size_t kFillGrain = size_t(1) << 15;
     std::unique_ptr<std::atomic<uint8_t>[]> state(new std::atomic<uint8_t>[n]);
-    for (size_t i = 0; i < n; ++i)
-        state[i].store(among ? kDropped : kOpen, std::memory_order_relaxed);
+    parallel_for(n, kFillGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i)
+            state[i].store(among ? kDropped : kOpen, std::memory_order_relaxed);
+    });
     if (among)
-        for (size_t a = 0; a < count; ++a) state[among[a]].store(kOpen, std::memory_order_relaxed);
+        parallel_for(count, kFillGrain, threads, [&](size_t b, size_t e, int) {
+            for (size_t a = b; a < e; ++a) state[among[a]].store(kOpen, std::memory_order_relaxed);
+        });
     auto before = [priority](uint32_t j, uint32_t i) {
         if (!priority) return j < i;
         return priority[j] > priority[i] || (priority[j] == priority[i] && j < i);
@@ -460,7 +466,9 @@ std::vector<uint8_t> thin_greedy(const double *points, const NeighbourTable &nb,
         }
         state[i].store(redundant ? kDropped : kKept, std::memory_order_relaxed);
     }
-    for (size_t i = 0; i < n; ++i) keep[i] = state[i].load(std::memory_order_relaxed) == kKept;
+    parallel_for(n, kFillGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) keep[i] = state[i].load(std::memory_order_relaxed) == kKept;
+    });
     return keep;
 }
 
@@ -469,8 +477,12 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
                       size_t n_viewpoints, const FitOptions &opt, Progress *progress) {
     size_t n = nb.n;
     FitResult res;
-    res.points.assign(points, points + 3 * n);
-    res.normals.assign(normals, normals + 3 * n);
+    res.points.resize(3 * n);
+    res.normals.resize(3 * n);
+    parallel_for(n, size_t(1) << 15, opt.threads, [&](size_t b, size_t e, int) {
+        std::copy(points + 3 * b, points + 3 * e, res.points.begin() + 3 * b);
+        std::copy(normals + 3 * b, normals + 3 * e, res.normals.begin() + 3 * b);
+    });
     res.keep.assign(n, 1);
     res.shift.assign(n, 0.f);
     res.spacing.assign(n, 0.0);
@@ -495,8 +507,9 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
     // each pass fits the previous pass's positions and normals (the first: the input's): the
     // noise left after one fit is ~1/sqrt(support) of the input's, so the next fit's normals
     // are that much better, and the surface is fitted over a wider effective support
-    std::vector<double> src_p;
-    std::vector<float> src_n;
+    UnfilledVector<double> src_p;
+    UnfilledVector<float> src_n;
+    constexpr size_t kCopyGrain = size_t(1) << 15;
     int passes = std::max(opt.passes, 1);
     // the plane passes before a last quadric pass each pull the points toward the concave
     // side; the quadric estimates that pull and it is given back after the last pass
@@ -515,8 +528,15 @@ FitResult fit_surface(const double *points, const float *normals, const uint32_t
         const double *sp = points;
         const float *sn = normals;
         if (pass > 0) {
-            src_p = res.points;
-            src_n = res.normals;
+            // copied on the workers (one thread would leave the other cores idle)
+            src_p.resize(3 * n);
+            src_n.resize(3 * n);
+            parallel_for(n, kCopyGrain, opt.threads, [&](size_t b, size_t e, int) {
+                std::copy(res.points.begin() + 3 * b, res.points.begin() + 3 * e,
+                          src_p.begin() + 3 * b);
+                std::copy(res.normals.begin() + 3 * b, res.normals.begin() + 3 * e,
+                          src_n.begin() + 3 * b);
+            });
             sp = src_p.data();
             sn = src_n.data();
         }

@@ -29,6 +29,8 @@ uint32_t tree_depth(size_t n) {
 
 /// Subtrees below this many points are built on the calling thread.
 constexpr uint32_t kSpawnMinPoints = 1u << 15;
+/// Points per chunk of the copies in and out of the build.
+constexpr size_t kCopyGrain = size_t(1) << 15;
 
 }  // namespace
 
@@ -46,18 +48,24 @@ KnnTree::KnnTree(const double *points, size_t n, int threads, Progress *progress
     dim_.assign(inner, 0);
     box_.assign(6 * (2 * inner + 1), 0.0);
     check_cancel(progress);
-    std::vector<KnnRecord> rec(n);
-    for (size_t i = 0; i < n; ++i) rec[i] = {{points[3 * i], points[3 * i + 1], points[3 * i + 2]}, uint32_t(i)};
+    // the copies in and out on the workers (one thread would leave the other cores idle)
+    UnfilledVector<KnnRecord> rec(n);
+    parallel_for(n, kCopyGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i)
+            rec[i] = {{points[3 * i], points[3 * i + 1], points[3 * i + 2]}, uint32_t(i)};
+    });
     int spawn = 0;
     for (int t = resolve_threads(threads); t > 1; t /= 2) ++spawn;
     if (n) build(rec.data(), 0, 0, uint32_t(n), 0, spawn);
     check_cancel(progress);
     pts_.resize(3 * n);
     ids_.resize(n);
-    for (size_t r = 0; r < n; ++r) {
-        for (int a = 0; a < 3; ++a) pts_[3 * r + a] = rec[r].p[a];
-        ids_[r] = rec[r].id;
-    }
+    parallel_for(n, kCopyGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t r = b; r < e; ++r) {
+            for (int a = 0; a < 3; ++a) pts_[3 * r + a] = rec[r].p[a];
+            ids_[r] = rec[r].id;
+        }
+    });
 }
 
 void KnnTree::build(KnnRecord *rec, uint32_t node, uint32_t begin, uint32_t end, uint32_t depth,
@@ -274,7 +282,7 @@ NeighbourTable knn_all(const KnnTree &tree, const double *points, uint32_t k, in
     NeighbourTable t;
     t.n = tree.size();
     t.k = t.n == 0 ? 0 : uint32_t(std::min<size_t>(k, t.n - 1));
-    t.index.assign(t.n * t.k, 0);
+    t.index.resize(t.n * t.k);  // unfilled: each row is written once, by the worker searching it
     knn_each(tree, points, t.k, true, threads, progress, [&t](uint32_t i, const uint32_t *row) {
         std::copy(row, row + t.k, t.index.data() + size_t(i) * t.k);
     }, isa);
@@ -288,15 +296,18 @@ void knn_each(const KnnTree &tree, const double *points, uint32_t k_wanted, bool
     const uint32_t k = n == 0 ? 0 : uint32_t(std::min<size_t>(k_wanted, n - 1));
     if (k == 0) return;
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
-    const std::vector<uint32_t> &ids = tree.ids_;
-    const std::vector<double> &pts = tree.pts_, &box = tree.box_;
+    const UnfilledVector<uint32_t> &ids = tree.ids_;
+    const UnfilledVector<double> &pts = tree.pts_;
+    const std::vector<double> &box = tree.box_;
     const std::vector<uint32_t> first = tree.leaf_ranges();
     const KnnKernels &kernels = knn_kernels(isa);
     // the points' coordinates one axis at a time (in tree order), for the kernels' vector loads
-    std::vector<double> xyz(3 * n);
+    UnfilledVector<double> xyz(3 * n);
     double *xs = xyz.data(), *ys = xs + n, *zs = ys + n;
-    for (size_t r = 0; r < n; ++r)
-        xs[r] = pts[3 * r], ys[r] = pts[3 * r + 1], zs[r] = pts[3 * r + 2];
+    parallel_for(n, kCopyGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t r = b; r < e; ++r)
+            xs[r] = pts[3 * r], ys[r] = pts[3 * r + 1], zs[r] = pts[3 * r + 2];
+    });
     const size_t leaves = first.size() - 1;
     const uint32_t leaf0 = (1u << tree.depth_) - 1;
     // The points of one leaf share their search: the leaves within a radius of the leaf's box

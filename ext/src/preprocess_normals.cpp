@@ -94,9 +94,10 @@ Fit fit_plane(const Rel *rel, uint32_t k) {
 
 /// What pass 2 of estimate_normals uses of a Fit (the smallest size's, fitted in pass 1).
 struct SmallFit {
-    double n[3] = {0, 0, 1};
-    double gain = 0, spread = 0;
-    bool ok = false;
+    // no initialisers: a table of them is left unfilled until pass 1 writes every entry
+    double n[3];
+    double gain, spread;
+    bool ok;
     SmallFit() = default;
     explicit SmallFit(const Fit &f)
         : n{f.axes.n[0], f.axes.n[1], f.axes.n[2]}, gain(f.gain), spread(f.spread),
@@ -150,8 +151,8 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     // pass 1: the residual variance of every point's smallest neighbourhood; its fit is kept
     // for pass 2, whose first size it is
     uint32_t k0 = sizes.front();
-    std::vector<double> sigma2(n, 0.0);
-    std::vector<SmallFit> first(n);
+    UnfilledVector<double> sigma2(n);  // every entry written by pass 1
+    UnfilledVector<SmallFit> first(n);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
         std::vector<Rel> rel(k0);

@@ -2,26 +2,33 @@
 #include "pointviz/orient.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <numeric>
 #include <vector>
 
+#include "pointviz/parallel.h"
+
 namespace pointviz {
 
 size_t orient_toward(const double *points, float *normals, size_t n, const double *viewpoints,
-                     size_t n_viewpoints) {
-    size_t flipped = 0;
-    for (size_t i = 0; i < n; ++i) {
-        const double *v = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
-        const double *p = points + 3 * i;
-        float *nn = normals + 3 * i;
-        double d = nn[0] * (v[0] - p[0]) + nn[1] * (v[1] - p[1]) + nn[2] * (v[2] - p[2]);
-        if (d < 0) {
-            nn[0] = -nn[0], nn[1] = -nn[1], nn[2] = -nn[2];
-            ++flipped;
+                     size_t n_viewpoints, int threads) {
+    std::atomic<size_t> flipped{0};
+    parallel_for(n, size_t(1) << 15, threads, [&](size_t b, size_t e, int) {
+        size_t c = 0;
+        for (size_t i = b; i < e; ++i) {
+            const double *v = viewpoints + (n_viewpoints == 1 ? 0 : 3 * i);
+            const double *p = points + 3 * i;
+            float *nn = normals + 3 * i;
+            double d = nn[0] * (v[0] - p[0]) + nn[1] * (v[1] - p[1]) + nn[2] * (v[2] - p[2]);
+            if (d < 0) {
+                nn[0] = -nn[0], nn[1] = -nn[1], nn[2] = -nn[2];
+                ++c;
+            }
         }
-    }
-    return flipped;
+        flipped.fetch_add(c, std::memory_order_relaxed);
+    });
+    return flipped.load();
 }
 
 namespace {

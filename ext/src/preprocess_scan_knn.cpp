@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 namespace pointviz {
@@ -54,14 +55,14 @@ DenseGroups dense_groups(const int32_t *group, size_t n) {
 
 std::vector<std::vector<uint32_t>> large_groups(const double *points, size_t n,
                                                 const int32_t *group, uint32_t k,
-                                                const KnnTree &all, NeighbourTable &out) {
+                                                const KnnTree &all, NeighbourTable &out,
+                                                const DenseGroups &dense) {
     if (all.size() != n || n <= k)
         throw std::invalid_argument("neighbours within scans: need a tree over more than k points");
     out.n = n;
     out.k = k;
-    out.index.resize(n * size_t(k));
+    out.index.resize(n * size_t(k));  // unfilled (or as the caller filled it): rows written below
     // each scan's points in index order, the scans in ascending order of their numbers
-    const DenseGroups dense = dense_groups(group, n);
     std::vector<std::vector<uint32_t>> members(dense.value.size());
     {
         std::vector<size_t> size(members.size(), 0);
@@ -409,7 +410,8 @@ NeighbourTable knn_within_groups(const double *points, size_t n, const int32_t *
                                  uint32_t k, const KnnTree &all, int threads,
                                  Progress *progress) {
     NeighbourTable out;
-    std::vector<std::vector<uint32_t>> scans = large_groups(points, n, group, k, all, out);
+    std::vector<std::vector<uint32_t>> scans =
+        large_groups(points, n, group, k, all, out, dense_groups(group, n));
     // one scan per worker at a time: a scan's tree and queries on one thread, the scans side by
     // side
     size_t queries = 0;
@@ -425,13 +427,31 @@ NeighbourTable knn_within_groups(const double *points, size_t n, const int32_t *
     return out;
 }
 
-NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *group,
-                                const int32_t *cell, const double *viewpoints,
-                                size_t n_viewpoints, uint32_t k, const KnnTree &all, int threads,
-                                Progress *progress, GridNeighbourStats *stats,
-                                const uint8_t *need) {
-    NeighbourTable out;
-    std::vector<std::vector<uint32_t>> scans = large_groups(points, n, group, k, all, out);
+namespace {
+
+/// knn_within_grids into `out` (its rows of points with need[i] == 0 left as they are), the
+/// scans numbered by `dense`.
+void grid_rows(const double *points, size_t n, const int32_t *group, const int32_t *cell,
+               const double *viewpoints, size_t n_viewpoints, uint32_t k, const KnnTree &all,
+               int threads, Progress *progress, GridNeighbourStats *stats, const uint8_t *need,
+               const DenseGroups &dense, NeighbourTable &out) {
+    std::vector<std::vector<uint32_t>> scans = large_groups(points, n, group, k, all, out, dense);
+    if (need) {
+        // the most searches first, by the rows each scan searches (a scan whose rows were
+        // mostly taken from elsewhere is quick): a long one taken last would leave the other
+        // workers idle
+        std::vector<std::pair<size_t, size_t>> order(scans.size());
+        for (size_t s = 0; s < scans.size(); ++s) {
+            size_t c = 0;
+            for (uint32_t i : scans[s]) c += need[i] != 0;
+            order[s] = {c, s};
+        }
+        std::stable_sort(order.begin(), order.end(),
+                         [](const auto &a, const auto &b) { return a.first > b.first; });
+        std::vector<std::vector<uint32_t>> sorted(scans.size());
+        for (size_t s = 0; s < scans.size(); ++s) sorted[s] = std::move(scans[order[s].second]);
+        scans.swap(sorted);
+    }
     size_t queries = 0;
     for (const std::vector<uint32_t> &ids : scans) queries += ids.size();
     if (progress) progress->total.fetch_add(queries, std::memory_order_relaxed);
@@ -506,6 +526,18 @@ NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *g
         stats->from_grid = from_grid.load();
         stats->from_view = from_view.load();
     }
+}
+
+}  // namespace
+
+NeighbourTable knn_within_grids(const double *points, size_t n, const int32_t *group,
+                                const int32_t *cell, const double *viewpoints,
+                                size_t n_viewpoints, uint32_t k, const KnnTree &all, int threads,
+                                Progress *progress, GridNeighbourStats *stats,
+                                const uint8_t *need) {
+    NeighbourTable out;
+    grid_rows(points, n, group, cell, viewpoints, n_viewpoints, k, all, threads, progress, stats,
+              need, dense_groups(group, n), out);
     return out;
 }
 
@@ -516,18 +548,24 @@ ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t 
                                   Progress *progress, GridNeighbourStats *stats) {
     if (across.n != n || k_least == 0 || k_least > k)
         throw std::invalid_argument("neighbours within scans: bad table to reuse");
+    if (all.size() != n || n <= k)
+        throw std::invalid_argument("neighbours within scans: need a tree over more than k points");
     ScanRows out;
-    out.count.assign(n, k);
-    // the same-scan entries of each row of `across`, in its order: the nearest of the point's
-    // own scan, as the search within the scan ranks them (by distance, then index)
-    std::vector<uint32_t> found(n, 0);
-    std::vector<uint32_t> rows(n * size_t(k));
-    std::vector<uint8_t> need(n, 0);
+    out.count.resize(n);
+    out.table.n = n;
+    out.table.k = k;
+    out.table.index.resize(n * size_t(k));  // unfilled: every row is written below or searched
     const DenseGroups dense = dense_groups(group, n);
     std::vector<size_t> sizes(dense.value.size(), 0);
     for (size_t i = 0; i < n; ++i) ++sizes[dense.of[i]];
+    // the same-scan entries of each row of `across`, in its order: the nearest of the point's
+    // own scan, as the search within the scan ranks them (by distance, then index); a row with
+    // fewer than k_least of them (or of a scan of at most k points) is searched instead
+    std::vector<uint8_t> need(n);
+    std::atomic<size_t> reused{0};
     parallel_for(n, 4096, threads, [&](size_t b, size_t e, int) {
         std::vector<uint32_t> same(across.k + 1);
+        size_t taken = 0;
         for (size_t i = b; i < e; ++i) {
             // without a branch on each entry (a row's scans are mixed): every entry written,
             // the count advanced over those of the point's scan; the first k of them kept
@@ -539,22 +577,20 @@ ScanRows knn_within_grids_reusing(const double *points, size_t n, const int32_t 
                 c += group[row[m]] == own;
             }
             c = std::min(c, k);
-            std::copy(same.begin(), same.begin() + c, rows.begin() + long(i * k));
-            found[i] = c;
+            need[i] = c < k_least || sizes[dense.of[i]] <= k;
+            out.count[i] = need[i] ? k : c;
+            if (need[i]) continue;
+            uint32_t *dst = out.table.index.data() + i * k;
+            std::copy(same.begin(), same.begin() + c, dst);
+            std::fill(dst + c, dst + k, kNoIndex);  // past the row's count
+            ++taken;
         }
+        reused.fetch_add(taken, std::memory_order_relaxed);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    for (size_t i = 0; i < n; ++i)
-        need[i] = found[i] < k_least || sizes[dense.of[i]] <= k;
-    out.table = knn_within_grids(points, n, group, cell, viewpoints, n_viewpoints, k, all,
-                                 threads, progress, stats, need.data());
-    for (size_t i = 0; i < n; ++i) {
-        if (need[i]) continue;
-        std::copy(rows.begin() + i * k, rows.begin() + i * k + found[i],
-                  out.table.index.begin() + i * k);
-        out.count[i] = found[i];
-        ++out.reused;
-    }
+    out.reused = reused.load();
+    grid_rows(points, n, group, cell, viewpoints, n_viewpoints, k, all, threads, progress, stats,
+              need.data(), dense, out.table);
     if (stats) stats->from_across = out.reused;
     return out;
 }

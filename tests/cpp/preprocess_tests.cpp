@@ -167,7 +167,7 @@ void test_knn_within_groups_matches_brute_force() {
         for (size_t i = 0; i < n; ++i) group[i] = i < 5 ? number[3] : number[i % 3];
         const uint32_t k = 12;
         KnnTree all(p.data(), n, 2);
-        std::vector<uint32_t> ref;
+        decltype(NeighbourTable::index) ref;
         for (int threads : {1, 3}) {
             NeighbourTable t = knn_within_groups(p.data(), n, group.data(), k, all, threads);
             CHECK(t.n == n && t.k == k, "table shape");
@@ -238,7 +238,7 @@ void test_grid_neighbours_match_brute_force_within_scan() {
     }
     const uint32_t k = 31;
     KnnTree all(p.data(), n, 2);
-    std::vector<uint32_t> ref;
+    decltype(NeighbourTable::index) ref;
     GridNeighbourStats st;
     for (int threads : {1, 2, 3}) {
         NeighbourTable t = knn_within_grids(p.data(), n, group.data(), cell.data(), nullptr, 0,
@@ -358,7 +358,7 @@ void test_view_grid_neighbours_match_brute_force() {
     size_t scan3 = std::count(group.begin(), group.end(), 3);
     KnnTree all(p.data(), n, 2);
     for (uint32_t k : {15u, 31u}) {
-        std::vector<uint32_t> ref;
+        decltype(NeighbourTable::index) ref;
         GridNeighbourStats st;
         for (int threads : {1, 2, 3}) {
             NeighbourTable t = knn_within_grids(p.data(), n, group.data(), nullptr, view.data(),

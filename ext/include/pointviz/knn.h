@@ -11,6 +11,7 @@
 #include <limits>
 #include <vector>
 
+#include "pointviz/default_init.h"
 #include "pointviz/isa.h"
 #include "pointviz/progress.h"
 
@@ -84,9 +85,9 @@ public:
                         uint32_t *idx, double *d2) const;
     /// Input index of the point stored at position r: visiting points in this order keeps
     /// neighbouring queries close in memory.
-    const std::vector<uint32_t> &order() const { return ids_; }
+    const UnfilledVector<uint32_t> &order() const { return ids_; }
     /// The points in tree order ((n, 3)).
-    const std::vector<double> &stored_points() const { return pts_; }
+    const UnfilledVector<double> &stored_points() const { return pts_; }
     /// Makes every query answer with stored positions instead of input indices: the tree then
     /// indexes stored_points(), which keeps a point's neighbours close to it in memory.
     void renumber_in_tree_order();
@@ -103,8 +104,8 @@ private:
                int spawn);
     void search(uint32_t node, uint32_t begin, uint32_t end, uint32_t depth, const double *q,
                 KnnHeap &heap, uint32_t done_leaf) const;
-    std::vector<double> pts_;     ///< (n, 3) points in tree order
-    std::vector<uint32_t> ids_;   ///< input index of each stored point
+    UnfilledVector<double> pts_;    ///< (n, 3) points in tree order
+    UnfilledVector<uint32_t> ids_;  ///< input index of each stored point
     std::vector<double> split_;   ///< split coordinate per inner node (heap layout)
     std::vector<uint8_t> dim_;    ///< split axis per inner node
     std::vector<double> box_;     ///< (lo, hi) bounding box of every node's points (heap layout)
@@ -117,7 +118,8 @@ private:
 struct NeighbourTable {
     size_t n = 0;
     uint32_t k = 0;
-    std::vector<uint32_t> index;   ///< (n, k)
+    /// (n, k); `resize` leaves the rows unwritten for the search's workers to fill
+    UnfilledVector<uint32_t> index;
     const uint32_t *row(size_t i) const { return index.data() + i * k; }
 };
 

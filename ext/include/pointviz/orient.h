@@ -12,9 +12,9 @@
 namespace pointviz {
 
 /// Flips normals[i] to face its viewpoint: `viewpoints` holds one row (all points) or n rows.
-/// Returns how many were flipped.
+/// Returns how many were flipped. On `threads` workers (0: all cores).
 size_t orient_toward(const double *points, float *normals, size_t n, const double *viewpoints,
-                     size_t n_viewpoints);
+                     size_t n_viewpoints, int threads = 0);
 
 /// Options of the spanning-tree orientation.
 struct OrientOptions {

@@ -91,6 +91,7 @@ constexpr uint32_t kScanRowsLeast = 11;
 /// Neighbours within scans, and how many of each row hold.
 struct ScanRows {
     NeighbourTable table;         ///< (n, k); row i valid in its first count[i] entries
+                                  ///< (the rest kNoIndex)
     std::vector<uint32_t> count;  ///< (n,) k, or fewer (at least k_least) for reused rows
     size_t reused = 0;            ///< rows taken from the table across scans
 };
