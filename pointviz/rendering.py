@@ -23,6 +23,18 @@ BACKGROUND_NICE = 10
 #: torus at 7.5x (160x120) costs FLIP 0.0012 at 16x and 0.029 at 48x (exposure 3.7 % off; at
 #: the full-detail frame's exposure 0.0009).
 MAX_BUDGET_SCALE = 16.0
+#: Mean FLIP per pixel the objects cover that footprint-sized offsets on rays leaving a surface
+#: cost (RenderSettings.footprint_offsets: a footprint above the surface, hits within two
+#: footprints ignored, as the size rule's rays start). Measured on the 8M striped torus (studio
+#: frames, E = 0.005; benchmarks/README.md, "Issue 18, the budget's secondary-ray offsets"):
+#: +0.0024 at 2.5x, where budget_scale is 6.3, so at least 0.0024 x 6.3 per covered pixel; at
+#: 7.5x (budget_scale 16) it predicts 0.00094 where +0.0004 is measured.
+OFFSETS_PIXEL_ERROR = 0.0151
+#: The share of the budget above its floor (lod.h: kBudgetFloor) the offsets may take, as each
+#: kind of secondary ray's visibility model may (lod.h: kShadowFlipWeight).
+OFFSETS_BUDGET_SHARE = 0.25
+#: lod.h's kBudgetFloor: the error of a frame in which nothing stops.
+BUDGET_FLOOR = 0.0005
 
 
 @dataclass
@@ -172,6 +184,25 @@ def budget_scale(bounds, camera) -> float:
     return float(1.0 / max(share, 1.0 / MAX_BUDGET_SCALE))
 
 
+def footprint_offsets(lod_pixels, max_error: float | None, share_scale: float | None) -> bool:
+    """Whether rays leaving a surface start a footprint above it (RenderSettings.footprint_offsets).
+
+    The size rule's (numeric ``lod_pixels``) always do. The budget's (``"auto"``) keep full
+    detail's offsets unless the offsets' predicted error, OFFSETS_PIXEL_ERROR times the share
+    of the frame the objects may cover (at most ``1 / share_scale``, see :func:`budget_scale`),
+    fits in OFFSETS_BUDGET_SHARE of the budget above its floor. Footprint-sized offsets spare
+    shadow and sky-visibility rays the full-detail nodes around their origin, which the
+    visibility model never stops at (lod.h: kVisibilityClearance): the far frames' shadow phase
+    drops below the 1 px frame's. E = 0.005 takes them from share_scale 13.4 (the striped torus
+    at 7.5x), none below E = 0.0043 (budget_scale is at most MAX_BUDGET_SCALE).
+    """
+    if lod_pixels != "auto":
+        return True
+    if not max_error or share_scale is None:
+        return False
+    return OFFSETS_PIXEL_ERROR / share_scale <= OFFSETS_BUDGET_SHARE * (max_error - BUDGET_FLOOR)
+
+
 def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            reflections: int = DEFAULTS.reflections, spp: int = DEFAULTS.spp,
            lod_pixels: float | str = DEFAULTS.lod_pixels,
@@ -267,15 +298,17 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
     rs, origin = scene.to_core(camera, lod_pixels, max_error)
+    share_scale = None
     if lod_pixels == "auto":
-        rs.set_budget_scale(budget_scale(scene.bounds(), camera))
+        share_scale = budget_scale(scene.bounds(), camera)
+        rs.set_budget_scale(share_scale)
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
     settings.shadows = bool(shadows)
     # the core only asks whether rays carry a footprint at all
     settings.lod_pixels = (1.0 if max_error else 0.0) if lod_pixels == "auto" else float(lod_pixels)
-    settings.footprint_offsets = lod_pixels != "auto"
+    settings.footprint_offsets = footprint_offsets(lod_pixels, max_error, share_scale)
     settings.seed = seed
     settings.sample_offset = check_int(sample_offset, "sample_offset", 0, 2**31 - 1)
     settings.sequence_spp = check_int(spp if sequence_spp is None else sequence_spp,
