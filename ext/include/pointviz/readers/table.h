@@ -19,6 +19,7 @@
 
 #include <sys/mman.h>
 
+#include "pointviz/default_init.h"
 #include "pointviz/progress.h"
 #include "pointviz/readers/numbers.h"
 
@@ -64,11 +65,11 @@ struct TableSpec {
 constexpr size_t kHugePageBytes = size_t(2) << 20;
 constexpr size_t kHugeBufferBytes = size_t(4) << 20;
 
-/// An allocator whose new elements are left uninitialised: the reader writes every value of a
-/// table, so zero-filling it first would be one more pass over memory. Large buffers are
+/// DefaultInitAllocator (new elements left unwritten: the reader writes every value of a
+/// table, so zero-filling it first would be one more pass over memory), with large buffers
 /// offered huge pages (kHugeBufferBytes).
 template <class T>
-struct UninitAllocator : std::allocator<T> {
+struct UninitAllocator : DefaultInitAllocator<T> {
     template <class U>
     struct rebind {
         using other = UninitAllocator<U>;
@@ -92,12 +93,6 @@ struct UninitAllocator : std::allocator<T> {
             std::allocator<T>::deallocate(p, n);
         else
             ::free(p);
-    }
-    template <class U>
-    void construct(U *) noexcept {}  // default-initialise: nothing for double
-    template <class U, class... Args>
-    void construct(U *p, Args &&...args) {
-        ::new (static_cast<void *>(p)) U(std::forward<Args>(args)...);
     }
 };
 
