@@ -67,7 +67,8 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
         Move raw scans onto a robust fit of their surface and drop the points that add nothing
         where scans overlap (:meth:`PointCloud.fitted`; ``notes`` and ``fit_report`` say what
         changed). Default: with ``estimate`` and for raw scans only, i.e. files without normals
-        whose scanner viewpoints are known (``.conf`` registrations).
+        whose scanner viewpoints are known (``.conf`` registrations; organised PCD clouds, one
+        depth-camera frame each, up -y when in the camera's coordinates).
     **kw
         ``rng`` (numpy Generator or seed, for ``sample``), ``up`` and ``name`` (override what
         the loader sets: ``up=(0, 0, 1)`` for LAS/LAZ, the file name).

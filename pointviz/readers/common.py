@@ -148,14 +148,18 @@ def mesh_cloud(
     return cloud
 
 
-def cloud_from_o3d_points(path, pcd, sample, rng) -> PointCloud:
+def cloud_from_o3d_points(path, pcd, sample, rng, frame=None) -> PointCloud:
+    """``frame(points, has_normals)``: more PointCloud keywords from the file (optional)."""
+    points = np.asarray(pcd.points)
+    extra = {} if frame is None else frame(points, pcd.has_normals())
     return point_cloud(
         path,
-        np.asarray(pcd.points),
+        points,
         np.asarray(pcd.normals) if pcd.has_normals() else None,
         np.asarray(pcd.colors) if pcd.has_colors() else None,
         sample=sample,
         rng=rng,
+        **extra,
     )
 
 
@@ -173,8 +177,9 @@ def mesh_from_o3d(path, mesh, sample, rng, merge=False) -> PointCloud:
 
 
 
-def read_o3d_points(path: Path, sample, rng) -> PointCloud:
-    """A point file through Open3D's reader (formats the core does not read)."""
+def read_o3d_points(path: Path, sample, rng, frame=None) -> PointCloud:
+    """A point file through Open3D's reader (formats the core does not read); ``frame`` as for
+    :func:`cloud_from_o3d_points`."""
     o3d = require("open3d", "io")
     with quiet_open3d(o3d):
         pcd = o3d.io.read_point_cloud(
@@ -182,4 +187,4 @@ def read_o3d_points(path: Path, sample, rng) -> PointCloud:
         )
     if len(pcd.points) == 0:
         raise FileFormatError(f"{path}: no points could be read (empty or unparsable file)")
-    return cloud_from_o3d_points(path, pcd, sample, rng)
+    return cloud_from_o3d_points(path, pcd, sample, rng, frame)

@@ -133,15 +133,56 @@ def _check_pcd(path: Path) -> dict:
     else:
         raise FileFormatError(f"{path}: PCD header: unknown DATA mode {mode!r}")
     check_points_fit(points, str(path))
+    viewpoint = h.get("VIEWPOINT", ["0"] * 7)
+    try:
+        origin = [float(v) for v in viewpoint[:3]]
+    except ValueError:
+        origin = [np.nan]
+    if len(viewpoint) != 7 or not np.isfinite(origin).all():
+        raise FileFormatError(
+            f"{path}: PCD header: VIEWPOINT must be 7 finite numbers, got {' '.join(viewpoint)}")
     return {"fields": list(h["FIELDS"]), "sizes": sizes, "types": [t.upper() for t in types],
-            "counts": counts, "points": points, "mode": mode, "offset": start}
+            "counts": counts, "points": points, "mode": mode, "offset": start,
+            "width": width, "height": height, "origin": np.asarray(origin)}
+
+
+def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> dict:
+    """What an organised cloud (HEIGHT > 1) without normals tells beyond its points: it is one
+    depth-camera frame, so the fit and the normals treat it as a raw scan.
+
+    PCL's grabbers write such frames in the camera's coordinates (x right, y down, z forward)
+    with the camera at the VIEWPOINT's origin; its rotation is not applied (the OpenNI grabber
+    writes a half turn about x over points still in the camera's frame). Returns the
+    PointCloud keywords: ``viewpoints`` (that origin), ``scan_index`` (one scan), ``scan_grid``
+    (each point's row and column: the frame's pixel grid gives its neighbours) and ``up`` (-y,
+    when most points lie in front of the camera, i.e. the frame is the camera's), and a note.
+    Empty for unorganised clouds and clouds with normals.
+    """
+    width, height = h["width"], h["height"]
+    if height <= 1 or width <= 1 or has_normals or width * height != len(points):
+        return {}
+    index = np.arange(len(points), dtype=np.int32)
+    grid = np.column_stack([index // width, index % width]).astype(np.int32)
+    origin = h["origin"]
+    depth = points[:, 2] - origin[2]
+    in_front = float(np.mean(depth[np.isfinite(depth)] > 0)) if np.isfinite(depth).any() else 0.0
+    extra = {"viewpoints": origin, "scan_index": np.zeros(len(points), np.int32),
+             "scan_grid": grid}
+    note = (f"organised cloud ({width} x {height}): read as one depth-camera frame, the camera at "
+            f"({origin[0]:g}, {origin[1]:g}, {origin[2]:g})")
+    if in_front > 0.5:
+        extra["up"] = np.array([0.0, -1.0, 0.0])
+        note += " looking along +z, up -y (PCL's camera frame)"
+    extra["notes"] = [note + "; normals face the camera and its pixel grid gives neighbours"]
+    return extra
 
 
 def read_pcd(path: Path, sample, rng) -> PointCloud:
     """A PCD file: ASCII and binary data in the core, binary_compressed through Open3D."""
     h = _check_pcd(path)
     if h["mode"] == "binary_compressed":
-        return read_o3d_points(path, sample, rng)
+        return read_o3d_points(path, sample, rng,
+                               frame=lambda pts, normals: depth_frame(path, h, pts, normals))
     columns, names = [], []
     for name, size, typ, count in zip(h["fields"], h["sizes"], h["types"], h["counts"]):
         scalar = table.PCD_SCALARS.get((typ, size))
@@ -181,4 +222,5 @@ def read_pcd(path: Path, sample, rng) -> PointCloud:
             bits = np.nan_to_num(raw).astype(np.uint32)
         rgb = np.column_stack([(bits >> 16) & 255, (bits >> 8) & 255, bits & 255])
         colors = rgb.astype(np.float32) / 255.0
-    return point_cloud(path, values[:, :3], normals, colors, sample=sample, rng=rng)
+    return point_cloud(path, values[:, :3], normals, colors, sample=sample, rng=rng,
+                       **depth_frame(path, h, values[:, :3], normals is not None))
