@@ -41,6 +41,7 @@ from .framing import (  # noqa: F401  (re-exported: Camera.fit's framing, which 
     OBJECT_AZIMUTH_DEG,
     OBJECT_ELEVATION_DEG,
     TERRAIN_ELEVATIONS_DEG,
+    VIEWPOINT_ELEVATION_DEG,
     _horizontal_axes,
     bounding_sphere,
     fit_camera,
@@ -193,10 +194,13 @@ class Camera(ArrayValue):
         :func:`shape_kind`): a terrain tile is seen from above at an oblique angle
         (TERRAIN_ELEVATIONS_DEG), across its short or along its long horizontal axis, whichever
         fills the frame most (:func:`frame_coverage`), an object from a
-        three-quarter view (OBJECT_AZIMUTH_DEG off its broad side, OBJECT_ELEVATION_DEG above).
-        The camera then moves as close as it can while the points' projections (all but the
-        ``outliers`` fraction on each side) stay inside the image shrunk by ``margin``, and the
-        target is set so that they are centred: the data fills the frame's width or height.
+        three-quarter view (OBJECT_AZIMUTH_DEG off its broad side, OBJECT_ELEVATION_DEG above),
+        and a cloud taken from a single viewpoint (``cloud.viewpoints`` of shape (3,): a depth
+        camera's frame) from that viewpoint, raised by VIEWPOINT_ELEVATION_DEG, when its points
+        lie in front of it. The camera then moves as close as it can while the points'
+        projections (all but the ``outliers`` fraction on each side) stay inside the image
+        shrunk by ``margin``, and the target is set so that they are centred: the data fills
+        the frame's width or height.
 
         With an explicit ``direction`` the bounding sphere of the points (see
         :func:`bounding_sphere`) is looked at along it from the distance given by

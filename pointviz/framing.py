@@ -38,6 +38,14 @@ DEFAULT_MARGIN = 1.05
 OBJECT_AZIMUTH_DEG = 30.0
 OBJECT_ELEVATION_DEG = 20.0
 TERRAIN_ELEVATIONS_DEG = (50.0, 62.0)
+#: A cloud taken from one viewpoint (a depth camera's frame) is seen from there, raised by this
+#: much: the view its points were taken for, which hides the gaps behind them, with enough
+#: height to show their relief and the ground. Only when the data lies in front of the
+#: viewpoint: (1 - VIEWPOINT_QUANTILE) of the points within VIEWPOINT_CONE_DEG of the line of
+#: sight to their centre (a scanner in the middle of its scene has no such view).
+VIEWPOINT_ELEVATION_DEG = 10.0
+VIEWPOINT_CONE_DEG = 70.0
+VIEWPOINT_QUANTILE = 0.05
 #: Cells (columns, rows) of the occupancy grid that compares the terrain views.
 COVERAGE_GRID = (64, 48)
 #: Points used to compare the candidate terrain views.
@@ -157,6 +165,45 @@ def _cloud_points_and_up(cloud: Any) -> tuple[np.ndarray, Any]:
     """Points (n, 3) and optional ``up`` of a cloud object (or a bare (n, 3) array)."""
     points = getattr(cloud, "points", cloud)
     return np.asarray(points), getattr(cloud, "up", None)
+
+
+def _single_viewpoint(cloud: Any) -> np.ndarray | None:
+    """The one viewpoint (3,) of a cloud taken from a single position, else None."""
+    vp = getattr(cloud, "viewpoints", None)
+    if vp is None:
+        return None
+    vp = np.asarray(vp, dtype=np.float64)
+    return vp if vp.shape == (3,) and np.isfinite(vp).all() else None
+
+
+def viewpoint_direction(pts: np.ndarray, centre: np.ndarray, viewpoint: np.ndarray,
+                        up: np.ndarray) -> np.ndarray | None:
+    """The automatic view of a cloud taken from ``viewpoint``: its line of sight to the data's
+    ``centre``, raised by VIEWPOINT_ELEVATION_DEG about the horizontal axis across it; None when
+    the data does not lie in front of the viewpoint (see VIEWPOINT_CONE_DEG) or the line of
+    sight is along ``up``."""
+    sight = centre - viewpoint
+    length = float(np.linalg.norm(sight))
+    if not length > 0.0:
+        return None
+    sight = sight / length
+    rays = pts - viewpoint
+    norms = np.linalg.norm(rays, axis=1)
+    ok = norms > 0
+    if not ok.any():
+        return None
+    cos = (rays[ok] @ sight) / norms[ok]
+    if np.quantile(cos, VIEWPOINT_QUANTILE) < math.cos(math.radians(VIEWPOINT_CONE_DEG)):
+        return None
+    u = up / np.linalg.norm(up)
+    horizontal = sight - u * (sight @ u)
+    h = float(np.linalg.norm(horizontal))
+    if h < 1e-6:
+        return None
+    horizontal /= h
+    below = math.asin(float(np.clip(-(sight @ u), -1.0, 1.0)))  # the line of sight's dip
+    elev = min(below + math.radians(VIEWPOINT_ELEVATION_DEG), math.radians(89.0))
+    return math.cos(elev) * horizontal - math.sin(elev) * u
 
 
 def _horizontal_axes(pts: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -438,7 +485,9 @@ def fit_camera(cls: type, cloud: Any, direction: Any, fov_deg: float, width: int
     auto = direction is None
     candidates = []
     if auto:
-        candidates = _auto_directions(pts, up)
+        viewpoint = _single_viewpoint(cloud)
+        seen = None if viewpoint is None else viewpoint_direction(pts, centre, viewpoint, up)
+        candidates = [seen] if seen is not None else _auto_directions(pts, up)
         direction = candidates[0]
     direction = check_vec3(direction, "direction")
     norm = float(np.linalg.norm(direction))

@@ -403,6 +403,15 @@ class Scene:
         return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                          for z in (lo[2], hi[2])])
 
+    @property
+    def viewpoints(self):
+        """The one viewpoint (3,) a single-object scene's cloud was taken from (a depth
+        camera's frame), else None: ``Camera.fit(scene)`` then looks from there."""
+        if len(self.objects) != 1:
+            return None
+        vp = getattr(self.objects[0].geometry, "viewpoints", None)
+        return vp if vp is not None and np.shape(vp) == (3,) else None
+
     def ground_point(self) -> np.ndarray:
         """A point of the ground plane: just under the objects along ``up``.
 

@@ -437,6 +437,62 @@ def test_fit_views_an_object_from_three_quarters_and_fills_the_frame(rng):
     np.testing.assert_allclose(centre, [80, 60], atol=0.5)
 
 
+def _depth_frame(rng, eye, forward, up, n=20000):
+    """Points a camera at ``eye`` sees: a wall 3 units ahead and a box on the floor below its
+    line of sight (a depth frame's scene), all within 30 degrees of ``forward``."""
+    forward, up = np.asarray(forward, float), np.asarray(up, float)
+    right = np.cross(forward, up)
+    a, b = rng.uniform(-1, 1, (2, n // 2, 1))
+    wall = eye + 3 * forward + a * right + b * up
+    floor = eye + rng.uniform(1, 3, (n // 2, 1)) * forward + b * right - up
+    return np.vstack([wall, floor])
+
+
+def test_fit_views_a_single_viewpoint_cloud_from_its_viewpoint(rng):
+    import pointviz
+    from pointviz.framing import VIEWPOINT_ELEVATION_DEG
+
+    eye = np.array([1.0, 2.0, 3.0])
+    forward, up = np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0])  # PCL's camera frame
+    pts = _depth_frame(rng, eye, forward, up)
+    cloud = pointviz.PointCloud(pts, viewpoints=eye, up=up)
+    cam = Camera.fit(cloud, width=160, height=120, outliers=0.0)
+    # oracle: the line of sight from the viewpoint to the centre of the points' bounding box
+    # (what outliers=0 frames), raised by the elevation
+    sight = (pts.min(axis=0) + pts.max(axis=0)) / 2 - eye
+    sight /= np.linalg.norm(sight)
+    dip = np.degrees(np.arcsin(-(sight @ up)))
+    elevation = np.degrees(np.arcsin(-(cam.forward @ up)))
+    assert elevation == pytest.approx(dip + VIEWPOINT_ELEVATION_DEG, abs=1e-6)
+    # the same vertical plane: the horizontal parts of the two directions agree
+    h = lambda v: (v - up * (v @ up)) / np.linalg.norm(v - up * (v @ up))  # noqa: E731
+    assert h(cam.forward) @ h(sight) == pytest.approx(1.0, abs=1e-9)
+    px, depth = cam.project(pts)
+    assert np.all(depth > 0) and np.all((px >= 0) & (px <= [160, 120]))
+    # what the CLI's background fit and a scene of the cloud see: the same view
+    from pointviz.commands.common import _camera_in_background
+
+    background = _camera_in_background(cloud, cam.fov_deg)().with_size(160, 120)
+    np.testing.assert_allclose(background.forward, Camera.fit(cloud, fov_deg=cam.fov_deg).forward,
+                               atol=1e-12)
+    scene_cam = Camera.fit(pointviz.Scene([cloud]), width=160, height=120)
+    assert np.degrees(np.arccos(np.clip(scene_cam.forward @ cam.forward, -1, 1))) < 5.0
+
+
+def test_fit_ignores_a_viewpoint_inside_its_scene(rng):
+    import pointviz
+
+    # a scanner in the middle of a room: no direction sees it all, so the shape decides
+    pts = rng.normal(size=(20000, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    pts *= [4.0, 1.5, 3.0]
+    inside = pointviz.PointCloud(pts, viewpoints=[0.0, 0.0, 0.0])
+    assert Camera.fit(inside) == Camera.fit(pointviz.PointCloud(pts))
+    # per-point viewpoints (registered scans) are several positions: the shape decides too
+    many = pointviz.PointCloud(pts, viewpoints=np.tile([0.0, 0.0, 10.0], (len(pts), 1)))
+    assert Camera.fit(many) == Camera.fit(pointviz.PointCloud(pts))
+
+
 # ------------------------------------------------------------- against the renderer's ray model
 
 

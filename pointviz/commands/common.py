@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 import threading
 from dataclasses import MISSING, fields
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -196,8 +197,10 @@ def _camera_in_background(cloud, fov: float):
     from ..camera import Camera
     from ..framing import fit_sample
 
-    sample, up = np.array(fit_sample(cloud.points)), cloud.up
-    return _in_background("pointviz-camera", lambda: Camera.fit(sample, fov_deg=fov, up=up))
+    # what Camera.fit reads of a cloud: its points' sample, up and viewpoints
+    view = SimpleNamespace(points=np.array(fit_sample(cloud.points)), up=cloud.up,
+                           viewpoints=cloud.viewpoints)
+    return _in_background("pointviz-camera", lambda: Camera.fit(view, fov_deg=fov))
 
 
 def _radii_in_background(loaded, path):
