@@ -168,9 +168,38 @@ def _run(argv) -> tuple[int, bool]:
         except (CancelledError, KeyboardInterrupt):
             print("pointviz: interrupted", file=sys.stderr)
             return 130, fast
+        except BrokenPipeError as exc:
+            if _stdout_closed():  # `pointviz info F | head`: the reader has what it wanted
+                return EXIT_BROKEN_PIPE, fast
+            print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)  # another pipe
+            return 2, fast
         except (PointvizError, OSError, MemoryError) as exc:
             print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
             return 2, fast
+
+
+#: Exit status when the reader of standard output went away: a filter ended by SIGPIPE's.
+EXIT_BROKEN_PIPE = 128 + 13
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output's reader has gone (a write to it fails with a broken pipe); if
+    so, standard output is pointed at /dev/null, so that what is still buffered (and the
+    interpreter's flush at exit) goes nowhere instead of raising again."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        gone = any(events & select.POLLERR for _, events in poll.poll(0))  # a pipe's, no reader
+    except (OSError, ValueError, AttributeError):  # no file descriptor, or no poll here
+        return False
+    if gone:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
+    return gone
 
 
 def _one_line(exc: BaseException) -> str:

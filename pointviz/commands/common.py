@@ -20,6 +20,32 @@ def add_input_options(p) -> None:
                    help="for meshes: sample N surface points instead of using the vertices")
     p.add_argument("--no-fit", dest="fit", action="store_false", default=None,
                    help="raw scans: keep the points as scanned (no surface fit, no thinning)")
+    p.add_argument("--up", default=None, metavar="AXIS",
+                   help="the data's up direction: x, y, z, -x, -y, -z or X,Y,Z, a leading minus "
+                        "after '=' (--up=-z; default: the file's convention: +z for LAS/LAZ, -y "
+                        "for depth-camera frames, else +y)")
+
+
+#: ``--up`` by axis name.
+_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def parse_up(text: str | None):
+    """``--up``: an axis name with an optional sign, or three numbers; None if not given."""
+    if text is None:
+        return None
+    word = text.strip().lower()
+    if word.lstrip("+-") in _AXES and len(word) - len(word.lstrip("+-")) <= 1:
+        sign = -1.0 if word.startswith("-") else 1.0
+        return tuple(sign * v for v in _AXES[word.lstrip("+-")])
+    try:
+        values = [float(v) for v in word.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not np.all(np.isfinite(values)) or not np.linalg.norm(values) > 0:
+        raise InputError(f"--up: expected x, y, z, -x, -y, -z or three numbers X,Y,Z (not all "
+                         f"zero), got {text!r}")
+    return tuple(values)
 
 
 def add_render_options(p) -> None:
@@ -74,14 +100,18 @@ def _number_or(names: tuple, kind: type):
 def load_input(args, radii: bool = True):
     """The cloud (or built-in demo scene) named on the command line; without ``radii`` the
     radii it needs are left to the caller (:func:`pointviz.io.estimate_radii_of`)."""
+    up = parse_up(getattr(args, "up", None))
     if args.input == "demo":
+        if up is not None:
+            raise InputError("--up: the built-in demo scene has its own up; it is for files")
         from ..shapes import demo_scene
 
         return demo_scene()
     from ..io import load
 
+    kw = {} if up is None else {"up": up}
     cloud = load(args.input, sample=args.sample, fit=getattr(args, "fit", None),
-                 estimate=True if radii else "normals")
+                 estimate=True if radii else "normals", **kw)
     report_fit(cloud)
     return cloud, None
 

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from .common import add_input_options
+from .common import add_input_options, parse_up
 
 
 def add_parser(sub) -> None:
@@ -22,7 +22,8 @@ def run(args) -> int:
     from ..surfels import SurfelScene
 
     t0 = time.perf_counter()
-    cloud = load(args.input, sample=args.sample, fit=args.fit)
+    up = parse_up(args.up)
+    cloud = load(args.input, sample=args.sample, fit=args.fit, **({} if up is None else {"up": up}))
     t_load = time.perf_counter() - t0
     t0 = time.perf_counter()
     radii = cloud.radii
@@ -34,6 +35,7 @@ def run(args) -> int:
         "points": len(cloud),
         "normals": "given" if cloud.has_normals else "estimated",
         "colors": bool(cloud.has_colors),
+        "up": None if cloud.up is None else [float(v) for v in cloud.up],
         "bounds_min": [float(v) for v in lo],
         "bounds_max": [float(v) for v in hi],
         "radius_median": float(np.median(radii)),

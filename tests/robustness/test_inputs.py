@@ -366,6 +366,10 @@ CLI_CASES = [
     ("fov-zero-on-a-file", ["render", "good.ply", "-o", "o.png", "--fov", "0"]),
     ("sample-negative", ["render", "trunc.ply", "-o", "o.png", "--sample", "-3"]),
     ("path-not-a-path", ["path", "demo", "path.json", "-o", "frames", "--scheduler", "serial"]),
+    ("up-zero", ["render", "good.ply", "-o", "o.png", "--up", "0,0,0"]),
+    ("up-garbage", ["render", "good.ply", "-o", "o.png", "--up", "sideways"]),
+    ("up-nan", ["render", "good.ply", "-o", "o.png", "--up", "nan,1,0"]),
+    ("up-on-the-demo", ["render", "demo", "-o", "o.png", "--up", "z"]),
 ]
 
 #: argparse's own errors print a usage block before the message (several lines).
@@ -400,6 +404,36 @@ def test_cli_argparse_errors_print_one_line(tmp_path):
     for (name, _), (code, _out, err) in zip(ARGPARSE_CASES, results):
         assert code == 2 and "Traceback" not in err, name
         assert len(err.strip().splitlines()) == 1, f"{name}: {err!r}"
+
+
+def test_cli_up_option_sets_the_clouds_up(tmp_path):
+    from pointviz.commands.common import parse_up
+
+    assert parse_up("z") == (0, 0, 1) and parse_up("-Y") == (0, -1, 0)
+    assert parse_up("+x") == (1, 0, 0) and parse_up("0, 0.5 ,2") == (0, 0.5, 2)
+    assert parse_up(None) is None
+    _cli_files(tmp_path)
+    code, out, err = _cli(["info", "good.ply", "--json", "--up=-z"], tmp_path)
+    assert code == 0, err
+    assert json.loads(out)["up"] == [0.0, 0.0, -1.0]
+
+
+def test_cli_reader_gone_ends_quietly(tmp_path):
+    """`pointviz info F | head`: standard output's reader gone before the first line, the run
+    ends without a traceback or an error line (a broken pipe is not the user's mistake)."""
+    import os
+
+    _cli_files(tmp_path)
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # no reader from the start: the first write fails, deterministically
+    try:
+        proc = subprocess.run([sys.executable, "-m", "pointviz.cli", "info", "good.ply"],
+                              cwd=tmp_path, stdout=write_end, stderr=subprocess.PIPE, text=True,
+                              timeout=120, check=False)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141, proc.stderr
+    assert proc.stderr == "", proc.stderr
 
 
 def test_cli_bad_output_extension_fails_before_rendering(tmp_path):
