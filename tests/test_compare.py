@@ -278,6 +278,12 @@ def test_cli_compare_quick(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
     assert main(["compare", "sphere", "-o", str(tmp_path / "s"), "--quick", "--methods",
                  "nope"]) == 2
+    # --up frames the view (and places the ground) about the given axis
+    assert main(["compare", "sphere", "-o", str(tmp_path / "z"), "--quick", "--methods",
+                 "discs", "--up", "z"]) == 0
+    camera = json.loads((tmp_path / "z" / "metrics.json").read_text())["camera"]
+    assert camera["up"] == [0.0, 0.0, 1.0]
+    assert main(["compare", "sphere", "-o", str(tmp_path / "w"), "--quick", "--up", "w"]) == 2
 
 
 @needs_embreex

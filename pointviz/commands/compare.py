@@ -12,6 +12,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..interrupt import stage
 from ..settings import check_int
+from .common import parse_up
 
 
 def add_parser(sub) -> None:
@@ -29,6 +30,9 @@ def add_parser(sub) -> None:
     p.add_argument("--stability", action="store_true", help="also run the stability sweeps")
     p.add_argument("--max-points", type=int, default=None, metavar="N",
                    help="subsample the input to N points")
+    p.add_argument("--up", default=None, metavar="AXIS",
+                   help="the data's up direction: x, y, z, -x, -y, -z or X,Y,Z (--up=-z); "
+                        "default: the file's convention")
     p.add_argument("--width", type=int, default=None)
     p.add_argument("--height", type=int, default=None)
     p.add_argument("--spp", type=int, default=None)
@@ -51,6 +55,9 @@ def run(args) -> int:
         value = getattr(args, key)
         if value is not None:
             setattr(settings, key, check_int(value, f"--{key.replace('_', '-')}"))
+    up = parse_up(args.up)
+    if up is not None:
+        settings.up = up
     methods = None if args.methods is None else [m.strip() for m in args.methods.split(",") if m.strip()]
     with staged_folder(output, args.overwrite) as staging:
         doc = compare(args.input, reference=args.reference, camera=args.camera, out_dir=staging,

@@ -245,8 +245,8 @@ def compare(input, reference=None, camera=None, out_dir="compare_out", methods=N
         cloud, ref_mesh, kind, desc = load_input(str(input), settings, reference)
     load_seconds = getattr(cloud, "_compare_load_seconds", None)
     cloud = _subsample(cloud, settings.max_points, settings.seed)
-    if camera is None:
-        camera = Camera.fit(cloud, width=settings.width, height=settings.height)
+    if camera is None:  # (settings.up, when given, frames the view as it places the ground)
+        camera = Camera.fit(cloud, width=settings.width, height=settings.height, up=settings.up)
     elif not hasattr(camera, "pixel_angle"):
         camera = Camera.from_json(camera).with_size(settings.width, settings.height)
     lo, hi = cloud.bounds
