@@ -383,11 +383,26 @@ def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, r
     with pytest.warns(UserWarning, match="NaN/inf"):
         cloud = load(path, estimate=False)
     assert cloud.up is None and cloud.is_raw_scan
-    # an unorganised cloud (HEIGHT 1) and an organised one with normals stay as they were
+    # an unorganised cloud (HEIGHT 1) stays as it was
     flat = tmp_path / "flat.pcd"
     write_pcd(flat, pts[np.isfinite(pts).all(axis=1)], int(np.isfinite(pts).all(axis=1).sum()), 1)
     cloud = load(flat, estimate=False)
     assert cloud.viewpoints is None and cloud.up is None and not cloud.is_raw_scan
+    # an organised one with normals keeps them (no fit), and is still the camera's frame
+    o3d = _o3d()
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.nan_to_num(pts)))
+    pcd.normals = o3d.utility.Vector3dVector(np.tile([0.0, 0.0, -1.0], (len(pts), 1)))
+    with_normals = tmp_path / "with_normals.pcd"
+    assert o3d.io.write_point_cloud(str(with_normals), pcd, compressed=True)
+    raw = with_normals.read_bytes()
+    cut = raw.index(b"DATA")
+    with_normals.write_bytes(raw[:cut].replace(b"WIDTH 3072\nHEIGHT 1", b"WIDTH 64\nHEIGHT 48")
+                             + raw[cut:])
+    cloud = load(with_normals)
+    assert cloud.fit_report is None and not cloud.is_raw_scan and len(cloud) == 64 * 48
+    np.testing.assert_array_equal(cloud.normals, np.tile([0.0, 0.0, -1.0], (64 * 48, 1)))
+    np.testing.assert_array_equal(cloud.up, [0, -1, 0])
+    np.testing.assert_array_equal(cloud.viewpoints, [0, 0, 0])
 
 
 @pytest.mark.parametrize("viewpoint", ["0 0 0 1 0 0", "0 0 x 1 0 0 0", "0 nan 0 1 0 0 0"])

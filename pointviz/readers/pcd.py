@@ -147,8 +147,9 @@ def _check_pcd(path: Path) -> dict:
 
 
 def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> dict:
-    """What an organised cloud (HEIGHT > 1) without normals tells beyond its points: it is one
-    depth-camera frame, so the fit and the normals treat it as a raw scan.
+    """What an organised cloud (HEIGHT > 1) tells beyond its points: it is one depth-camera
+    frame, so without normals the fit and the normals treat it as a raw scan, and either way the
+    default view is the camera's (:meth:`pointviz.camera.Camera.fit`).
 
     PCL's grabbers write such frames in the camera's coordinates (x right, y down, z forward)
     with the camera at the VIEWPOINT's origin; its rotation is not applied (the OpenNI grabber
@@ -156,10 +157,10 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     PointCloud keywords: ``viewpoints`` (that origin), ``scan_index`` (one scan), ``scan_grid``
     (each point's row and column: the frame's pixel grid gives its neighbours) and ``up`` (-y,
     when most points lie in front of the camera, i.e. the frame is the camera's), and a note.
-    Empty for unorganised clouds and clouds with normals.
+    Empty for unorganised clouds.
     """
     width, height = h["width"], h["height"]
-    if height <= 1 or width <= 1 or has_normals or width * height != len(points):
+    if height <= 1 or width <= 1 or width * height != len(points):
         return {}
     index = np.arange(len(points), dtype=np.int32)
     grid = np.column_stack([index // width, index % width]).astype(np.int32)
@@ -173,7 +174,9 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     if in_front > 0.5:
         extra["up"] = np.array([0.0, -1.0, 0.0])
         note += " looking along +z, up -y (PCL's camera frame)"
-    extra["notes"] = [note + "; normals face the camera and its pixel grid gives neighbours"]
+    if not has_normals:
+        note += "; normals face the camera and its pixel grid gives neighbours"
+    extra["notes"] = [note]
     return extra
 
 
