@@ -383,6 +383,18 @@ def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, r
     with pytest.warns(UserWarning, match="NaN/inf"):
         cloud = load(path, estimate=False)
     assert cloud.up is None and cloud.is_raw_scan
+    # a spinning LiDAR's organised frame (beams x azimuths, z up, all around the sensor): its
+    # grid and viewpoint hold, but it is no camera's frame
+    elev, azim = np.meshgrid(np.radians(np.linspace(-15, 15, 16)), np.linspace(0, 2 * np.pi, 128,
+                                                                               endpoint=False),
+                             indexing="ij")
+    dirs = np.stack([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)],
+                    axis=-1).reshape(-1, 3)
+    lidar = dirs * (10.0 + rng.uniform(0, 1, (len(dirs), 1)))
+    path = tmp_path / "lidar.pcd"
+    write_pcd(path, lidar, 128, 16)
+    cloud = load(path, estimate=False)
+    assert cloud.up is None and cloud.is_raw_scan and cloud.scan_grid.shape == (16 * 128, 2)
     # an unorganised cloud (HEIGHT 1) stays as it was
     flat = tmp_path / "flat.pcd"
     write_pcd(flat, pts[np.isfinite(pts).all(axis=1)], int(np.isfinite(pts).all(axis=1).sum()), 1)
@@ -390,7 +402,7 @@ def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, r
     assert cloud.viewpoints is None and cloud.up is None and not cloud.is_raw_scan
     # an organised one with normals keeps them (no fit), and is still the camera's frame
     o3d = _o3d()
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.nan_to_num(pts)))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     pcd.normals = o3d.utility.Vector3dVector(np.tile([0.0, 0.0, -1.0], (len(pts), 1)))
     with_normals = tmp_path / "with_normals.pcd"
     assert o3d.io.write_point_cloud(str(with_normals), pcd, compressed=True)
@@ -398,9 +410,11 @@ def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, r
     cut = raw.index(b"DATA")
     with_normals.write_bytes(raw[:cut].replace(b"WIDTH 3072\nHEIGHT 1", b"WIDTH 64\nHEIGHT 48")
                              + raw[cut:])
-    cloud = load(with_normals)
-    assert cloud.fit_report is None and not cloud.is_raw_scan and len(cloud) == 64 * 48
-    np.testing.assert_array_equal(cloud.normals, np.tile([0.0, 0.0, -1.0], (64 * 48, 1)))
+    with pytest.warns(UserWarning, match="NaN/inf"):
+        cloud = load(with_normals)
+    finite = int(np.isfinite(pts).all(axis=1).sum())
+    assert cloud.fit_report is None and not cloud.is_raw_scan and len(cloud) == finite
+    np.testing.assert_array_equal(cloud.normals, np.tile([0.0, 0.0, -1.0], (finite, 1)))
     np.testing.assert_array_equal(cloud.up, [0, -1, 0])
     np.testing.assert_array_equal(cloud.viewpoints, [0, 0, 0])
 

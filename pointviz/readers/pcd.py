@@ -23,6 +23,9 @@ _PCD_REQUIRED = ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "POINTS", "DATA")
 # Most values one PCD field may hold: descriptors reach a few hundred (VFH: 308); Open3D's reader
 # overflows (and crashes) on counts near 2^31.
 _PCD_MAX_COUNT = 1 << 16
+# An organised cloud is in its camera's coordinates (up -y) when this fraction of its points lies
+# in a frustum about +z of the VIEWPOINT origin (the four PCL frames here: all of them).
+CAMERA_FRAME_FRACTION = 0.95
 
 
 def _pcd_header(path: Path) -> dict | None:
@@ -156,7 +159,8 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     writes a half turn about x over points still in the camera's frame). Returns the
     PointCloud keywords: ``viewpoints`` (that origin), ``scan_index`` (one scan), ``scan_grid``
     (each point's row and column: the frame's pixel grid gives its neighbours) and ``up`` (-y,
-    when most points lie in front of the camera, i.e. the frame is the camera's), and a note.
+    when CAMERA_FRAME_FRACTION of the points lie in a frustum in front of the camera, i.e. the
+    frame is the camera's), and a note.
     Empty for unorganised clouds.
     """
     width, height = h["width"], h["height"]
@@ -165,13 +169,18 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     index = np.arange(len(points), dtype=np.int32)
     grid = np.column_stack([index // width, index % width]).astype(np.int32)
     origin = h["origin"]
-    depth = points[:, 2] - origin[2]
-    in_front = float(np.mean(depth[np.isfinite(depth)] > 0)) if np.isfinite(depth).any() else 0.0
+    rel = points - origin
+    rel = rel[np.isfinite(rel).all(axis=1)]
+    z = rel[:, 2]
+    # a camera's frame: nearly every point inside a frustum about +z narrower than 127 degrees
+    # (depth cameras: 57-90); a spinning LiDAR's organised frame (z up, all around) is not
+    in_view = (z > 0) & (np.abs(rel[:, 0]) < 2 * z) & (np.abs(rel[:, 1]) < 2 * z)
+    in_front = float(np.mean(in_view)) if len(rel) else 0.0
     extra = {"viewpoints": origin, "scan_index": np.zeros(len(points), np.int32),
              "scan_grid": grid}
     note = (f"organised cloud ({width} x {height}): read as one depth-camera frame, the camera at "
             f"({origin[0]:g}, {origin[1]:g}, {origin[2]:g})")
-    if in_front > 0.5:
+    if in_front >= CAMERA_FRAME_FRACTION:
         extra["up"] = np.array([0.0, -1.0, 0.0])
         note += " looking along +z, up -y (PCL's camera frame)"
     if not has_normals:
