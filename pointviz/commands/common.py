@@ -227,9 +227,11 @@ def _camera_in_background(cloud, fov: float):
     from ..camera import Camera
     from ..framing import fit_sample
 
-    # what Camera.fit reads of a cloud: its points' sample, up and viewpoints
+    # what Camera.fit reads of a cloud: its points' sample, up and a single viewpoint (per-point
+    # viewpoints are not kept alive beside the build that frees the cloud's arrays)
+    vp = cloud.viewpoints
     view = SimpleNamespace(points=np.array(fit_sample(cloud.points)), up=cloud.up,
-                           viewpoints=cloud.viewpoints)
+                           viewpoints=vp if vp is not None and np.shape(vp) == (3,) else None)
     return _in_background("pointviz-camera", lambda: Camera.fit(view, fov_deg=fov))
 
 
