@@ -100,11 +100,17 @@ COVER_GLOBAL_CAP = 4.0
 # 0.045 % -> 0.129 / 0.037 %, depth error 4.57e-4 / 1.06e-3 -> 4.71e-4 / 1.01e-3. Fits of 24
 # points (a 23-neighbour search across scans) were worse (1.04 / 3.98 degrees), and so were
 # initial normals of at most 8 or 12 points at 0.4 % noise (5.37 / 3.17 degrees). Their
-# neighbours within the scan come from the 31 across all scans where those hold at least 11 of
+# neighbours within the scan come from the 31 across all scans where those hold at least 10 of
 # the point's own scan (then up to 15 of them; kScanRowsLeast in the core's scan_neighbours.h):
-# where scans overlap a normal may rest on 12-15 points instead of 16, and the sphere scans'
-# within-scan search is left with 44 % of its points.
+# where scans overlap a normal may rest on 11-15 points instead of 16, and the sphere scans'
+# within-scan search is left with 40 % of its points.
 FIT_NORMAL_K_MAX = 16
+# Sizes of those starting normals: 8 then FIT_NORMAL_K_MAX (the size doubled; 1.5 tried 8, 12,
+# 16): one plane fit and one 3x3 eigen-solve less per point. Torus scans (holes_over_seeds.py,
+# seeds 1-3, 0.1 % / 0.4 % noise) with 8, 12, 16 / with 8, 16: normal error 0.8692 / 2.910 ->
+# 0.8692 / 2.909 degrees, holes 0.1033 / 0.0419 % -> 0.1033 / 0.0409 %, depth error 5.668e-4 /
+# 1.044e-3 -> 5.668e-4 / 1.047e-3; the sphere scans' normals 0.72 -> 0.62 s of CPU (one thread).
+FIT_NORMAL_GROWTH = 2.0
 FIT_MIN_SUPPORT = 32
 FIT_PASSES = 2
 FIT_ROBUST_PASSES = 0
@@ -559,6 +565,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
         FIT_ROBUST_WIDTH, float(thin), bool(strays), _threads(threads),
         _grid(scan_grid, group, n) if nrm is None else None,
         COVER_K if radii else 0, COVER_DIRECTIONS, COVER_MARGIN, COVER_CAP, COVER_GLOBAL_CAP,
+        normal_growth=FIT_NORMAL_GROWTH,
     )
     keep = out["keep"].view(bool)
     rad = out.get("radii")

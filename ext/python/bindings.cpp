@@ -819,11 +819,13 @@ NB_MODULE(_core, m) {
                             bool quadric, int passes, int robust_passes, double robust_width,
                             double thin, bool strays, int threads,
                             std::optional<CArray<int32_t>> scan_grid, uint32_t cover_k,
-                            uint32_t directions, double margin, double cap, double global_cap) {
+                            uint32_t directions, double margin, double cap, double global_cap,
+                            double normal_growth) {
         PointsView v = points_view(points, viewpoints, scan_index);
         add_scan_grid(v, scan_grid);
         if (normals) check_normals(*normals, v.n);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
+        no.growth = normal_growth;
         OrientOptions oo = orient_options(orient, up);
         FitOptions fo;
         fo.min_support = min_support;
@@ -866,7 +868,7 @@ NB_MODULE(_core, m) {
        "passes"_a, "robust_passes"_a, "robust_width"_a, "thin"_a, "strays"_a = true, "threads"_a = 0,
        "scan_grid"_a.none() = nb::none(), "cover_k"_a = 0, "directions"_a = CoverOptions{}.directions,
        "margin"_a = CoverOptions{}.margin, "cap"_a = CoverOptions{}.cap,
-       "global_cap"_a = CoverOptions{}.global_cap);
+       "global_cap"_a = CoverOptions{}.global_cap, "normal_growth"_a = NormalOptions{}.growth);
 
     m.def("stray_clusters", [](CArray<double> points, std::optional<CArray<int32_t>> scan_index,
                                uint32_t k, double reach, uint32_t min_points, double fraction,

@@ -16,6 +16,23 @@ double distance(const double *a, const double *b) {
     return std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
 }
 
+/// Whether two points `d2` (squared distance) apart are within `limit`: distance(a, b) <=
+/// limit, decided as that test does (the correctly rounded root compared), without the root
+/// unless d2 lies within 1e-12 of limit^2 (beyond that margin the root's rounding cannot change
+/// the answer).
+bool within(double d2, double limit) {
+    const double l2 = limit * limit;
+    if (!(l2 > 1e-290 && l2 < 1e290)) return std::sqrt(d2) <= limit;  // squares out of range
+    if (d2 < l2 * (1.0 - 1e-12)) return true;
+    if (d2 > l2 * (1.0 + 1e-12)) return false;
+    return std::sqrt(d2) <= limit;
+}
+
+double distance2(const double *a, const double *b) {
+    double d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+}
+
 /// Root of i, halving the path on the way (each visited node then points to its grandparent).
 uint32_t find_root(std::vector<uint32_t> &parent, uint32_t i) {
     while (parent[i] != i) {
@@ -57,19 +74,24 @@ StrayResult find_stray_clusters(const double *points, const NeighbourTable &nb,
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    // links: each point to the neighbours within reach (in parallel), then joined in index order
-    std::vector<uint8_t> link(n * size_t(nb.k), 0);
-    parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        for (size_t i = b; i < e; ++i) {
-            const uint32_t *row = nb.row(i);
-            for (uint32_t m = 0; m < nb.k; ++m) {
-                uint32_t j = row[m];
-                double d = distance(points + 3 * size_t(j), points + 3 * i);
-                link[i * nb.k + m] = d <= opt.reach * std::min(spacing[i], spacing[j]);
+    // links: each point to the neighbours within reach, then joined in index order. With more
+    // than one thread the links are found in parallel first (a byte per table entry); on one
+    // (the fit's stray thread) each is tested as the union-find meets it: no table of them.
+    auto linked = [&](size_t i, uint32_t j) {
+        return within(distance2(points + 3 * size_t(j), points + 3 * i),
+                      opt.reach * std::min(spacing[i], spacing[j]));
+    };
+    const bool inline_links = resolve_threads(opt.threads) <= 1;
+    std::vector<uint8_t> link(inline_links ? 0 : n * size_t(nb.k), 0);
+    if (!inline_links) {
+        parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
+            for (size_t i = b; i < e; ++i) {
+                const uint32_t *row = nb.row(i);
+                for (uint32_t m = 0; m < nb.k; ++m) link[i * nb.k + m] = linked(i, row[m]);
             }
-        }
-    }, progress ? &progress->cancel : nullptr);
-    check_cancel(progress);
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+    }
     std::vector<uint32_t> parent(n);
     for (size_t i = 0; i < n; ++i) parent[i] = uint32_t(i);
     for (size_t b = 0; b < n; b += kGrain) {
@@ -78,8 +100,9 @@ StrayResult find_stray_clusters(const double *points, const NeighbourTable &nb,
             // i's root, kept current as its neighbours' components join it (the root of a
             // component is its smallest index)
             uint32_t a = find_root(parent, uint32_t(i));
+            const uint32_t *row = nb.row(i);
             for (uint32_t m = 0; m < nb.k; ++m) {
-                if (!link[i * nb.k + m]) continue;
+                if (inline_links ? !linked(i, row[m]) : !link[i * nb.k + m]) continue;
                 uint32_t c = find_root(parent, nb.row(i)[m]);
                 if (c > a) {
                     parent[c] = a;

@@ -129,6 +129,8 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     size_t n = nb.n;
     if (opt.k_min < 3 || opt.k_max < opt.k_min)
         throw std::invalid_argument("normals: need 3 <= k_min <= k_max");
+    if (!(opt.growth > 1.0 && opt.growth <= 1e3))
+        throw std::invalid_argument("normals: need a growth factor in (1, 1000]");
     NormalResult out;
     out.normals.assign(3 * n, 0.f);
     out.support.assign(n, 0);
@@ -137,7 +139,7 @@ NormalResult estimate_normals(const double *points, const NeighbourTable &nb,
     // neighbourhood sizes tried, the point included, capped by what the table holds
     uint32_t cap = std::min<uint32_t>(opt.k_max, nb.k + 1);
     std::vector<uint32_t> sizes;
-    for (double s = opt.k_min; uint32_t(s) < cap; s *= 1.5) sizes.push_back(uint32_t(s));
+    for (double s = opt.k_min; uint32_t(s) < cap; s *= opt.growth) sizes.push_back(uint32_t(s));
     sizes.push_back(cap);
     if (cap < 3) throw std::invalid_argument("normals: need at least 3 points");
     if (count)

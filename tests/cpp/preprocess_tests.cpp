@@ -448,6 +448,183 @@ void test_tiny_clouds() {
     CHECK(t0.size() == 0, "empty tree");
 }
 
+/// The stray clusters against an oracle written here: each point's spacing (the rank-th nearest
+/// distinct neighbour of its own scan in its row, else the farthest listed), links as
+/// distance <= reach x the smaller spacing (the rooted distance compared), components by a
+/// breadth-first search, numbered by their first point. On one thread the links are tested as
+/// the union-find meets them (no table), on more they are tabled first: both must be the
+/// oracle's. A square grid of unit spacing puts many neighbours at exactly 3 = reach x spacing
+/// (the boundary, where comparing squares instead of roots could differ), beside small clusters
+/// and isolated points.
+void test_stray_clusters_match_an_oracle() {
+    std::vector<double> p;
+    std::vector<int32_t> group;
+    for (int y = 0; y < 40; ++y)
+        for (int x = 0; x < 40; ++x) {
+            p.insert(p.end(), {double(x), double(y), 0.0});
+            group.push_back(y < 20 ? 0 : 1);  // two scans side by side
+        }
+    std::mt19937 g(5);
+    std::uniform_real_distribution<double> U(-0.5, 0.5);
+    for (int c = 0; c < 6; ++c)  // small clusters 10 + 4c away from the grid
+        for (int j = 0; j < 5 + 3 * c; ++j) {
+            p.insert(p.end(), {60.0 + 4.0 * c + 0.4 * U(g), 10.0 + 0.4 * U(g), 0.1 * U(g)});
+            group.push_back(2);
+        }
+    for (int j = 0; j < 8; ++j) {  // isolated points, and duplicates of a grid point
+        p.insert(p.end(), {-20.0 - 7.0 * j, -20.0, 3.0 * j});
+        group.push_back(3);
+    }
+    for (int j = 0; j < 3; ++j) {
+        p.insert(p.end(), {5.0, 5.0, 0.0});
+        group.push_back(1);
+    }
+    const size_t n = p.size() / 3;
+    KnnTree tree(p.data(), n, 1);
+    NeighbourTable t = knn_all(tree, p.data(), 31, 1);
+    StrayOptions so;
+    // oracle
+    std::vector<double> spacing(n, 0.0);
+    for (size_t i = 0; i < n; ++i) {
+        uint32_t own = 0;
+        for (uint32_t m = 0; m < t.k && own < so.rank; ++m) {
+            const uint32_t j = t.row(i)[m];
+            const double d = std::sqrt(d2(&p[3 * i], &p[3 * size_t(j)]));
+            if (d > 0) spacing[i] = d;
+            if (d > 0 && group[j] == group[i]) ++own;
+        }
+    }
+    std::vector<std::vector<uint32_t>> adj(n);
+    size_t at_boundary = 0;
+    for (size_t i = 0; i < n; ++i)
+        for (uint32_t m = 0; m < t.k; ++m) {
+            const uint32_t j = t.row(i)[m];
+            const double d = std::sqrt(d2(&p[3 * i], &p[3 * size_t(j)]));
+            const double limit = so.reach * std::min(spacing[i], spacing[j]);
+            at_boundary += d == limit;
+            if (d <= limit) adj[i].push_back(j), adj[j].push_back(uint32_t(i));
+        }
+    std::vector<uint32_t> label(n, kNoIndex), size;
+    for (size_t s = 0; s < n; ++s) {
+        if (label[s] != kNoIndex) continue;
+        const uint32_t c = uint32_t(size.size());
+        size.push_back(0);
+        std::vector<uint32_t> queue{uint32_t(s)};
+        label[s] = c;
+        for (size_t q = 0; q < queue.size(); ++q) {
+            ++size[c];
+            for (uint32_t j : adj[queue[q]])
+                if (label[j] == kNoIndex) label[j] = c, queue.push_back(j);
+        }
+    }
+    const size_t largest = size_t(std::max_element(size.begin(), size.end()) - size.begin());
+    const double below = std::max(double(so.min_points), so.fraction * double(n));
+    CHECK(at_boundary > 1000, "stray oracle: %zu links exactly at the reach", at_boundary);
+    CHECK(size.size() >= 8, "stray oracle: %zu components", size.size());
+    for (int threads : {1, 3}) {
+        so.threads = threads;
+        StrayResult r = find_stray_clusters(p.data(), t, group.data(), so);
+        CHECK(r.label == label && r.components == size.size(),
+              "%d threads: components differ from the oracle's (%zu vs %zu)", threads,
+              r.components, size.size());
+        size_t wrong = 0;
+        for (size_t i = 0; i < n; ++i)
+            wrong += r.stray[i] != uint8_t(label[i] != largest && double(size[label[i]]) < below);
+        CHECK(wrong == 0, "%d threads: %zu points' stray flag differs from the oracle's", threads,
+              wrong);
+    }
+}
+
+/// The smallest eigenvector of a symmetric 3x3 matrix by Jacobi rotations (the oracle of the
+/// normals' closed-form solve).
+void jacobi_smallest(double a[3][3], double out[3]) {
+    double v[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    for (int sweep = 0; sweep < 50; ++sweep)
+        for (int p = 0; p < 3; ++p)
+            for (int q = p + 1; q < 3; ++q) {
+                if (std::fabs(a[p][q]) < 1e-300) continue;
+                double th = (a[q][q] - a[p][p]) / (2 * a[p][q]);
+                double t = (th >= 0 ? 1 : -1) / (std::fabs(th) + std::sqrt(th * th + 1));
+                double c = 1 / std::sqrt(t * t + 1), s = t * c;
+                for (int k = 0; k < 3; ++k) {  // A <- J^T A J, V <- V J
+                    double akp = a[k][p], akq = a[k][q];
+                    a[k][p] = c * akp - s * akq, a[k][q] = s * akp + c * akq;
+                }
+                for (int k = 0; k < 3; ++k) {
+                    double apk = a[p][k], aqk = a[q][k];
+                    a[p][k] = c * apk - s * aqk, a[q][k] = s * apk + c * aqk;
+                }
+                for (int k = 0; k < 3; ++k) {
+                    double vkp = v[k][p], vkq = v[k][q];
+                    v[k][p] = c * vkp - s * vkq, v[k][q] = s * vkp + c * vkq;
+                }
+            }
+    int m = 0;
+    for (int k = 1; k < 3; ++k)
+        if (a[k][k] < a[m][m]) m = k;
+    for (int k = 0; k < 3; ++k) out[k] = v[k][m];
+}
+
+/// NormalOptions::growth: the sizes tried are k_min, k_min x growth, ..., then k_max; each
+/// point's normal is the weighted plane of the size it chose, checked against a Jacobi
+/// eigen-solve of that neighbourhood's weighted covariance (weights (1 - d^2 / h^2)^2, h 1.5 x
+/// the farthest member's distance, the point itself weight 1).
+void test_normal_sizes_follow_the_growth() {
+    std::vector<double> p = sphere_points(4000, 21, 0.002);
+    const size_t n = p.size() / 3;
+    KnnTree tree(p.data(), n, 1);
+    NeighbourTable t = knn_all(tree, p.data(), 15, 1);
+    for (double growth : {1.5, 2.0}) {
+        NormalOptions no;
+        no.k_min = 8, no.k_max = 16, no.growth = growth, no.threads = 2;
+        NormalResult r = estimate_normals(p.data(), t, no);
+        std::vector<size_t> seen(17, 0);
+        size_t far = 0;
+        for (size_t i = 0; i < n; ++i) {
+            const uint32_t k = r.support[i];
+            ++seen[std::min<uint32_t>(k, 16)];
+            double h2 = 2.25 * d2(&p[3 * i], &p[3 * size_t(t.row(i)[k - 2])]);
+            double s0 = 1, c[3] = {0, 0, 0}, a[3][3] = {};
+            std::vector<double> w(k - 1);
+            for (uint32_t m = 0; m + 1 < k; ++m) {
+                const double *q = &p[3 * size_t(t.row(i)[m])];
+                double u = 1 - d2(q, &p[3 * i]) / h2;
+                w[m] = u * u, s0 += w[m];
+                for (int x = 0; x < 3; ++x) c[x] += w[m] * (q[x] - p[3 * i + x]);
+            }
+            for (double &x : c) x /= s0;
+            for (uint32_t m = 0; m <= k - 1; ++m) {  // m == k - 1: the point itself
+                const double *q = m + 1 < k ? &p[3 * size_t(t.row(i)[m])] : &p[3 * i];
+                const double wm = m + 1 < k ? w[m] : 1.0;
+                double d[3];
+                for (int x = 0; x < 3; ++x) d[x] = q[x] - p[3 * i + x] - c[x];
+                for (int x = 0; x < 3; ++x)
+                    for (int y = 0; y < 3; ++y) a[x][y] += wm * d[x] * d[y] / s0;
+            }
+            double e[3];
+            jacobi_smallest(a, e);
+            const float *nn = &r.normals[3 * i];
+            far += std::fabs(e[0] * nn[0] + e[1] * nn[1] + e[2] * nn[2]) < 1 - 1e-6;
+        }
+        CHECK(far == 0, "growth %.1f: %zu normals off the Jacobi solve of their neighbourhood",
+              growth, far);
+        const bool twos = growth == 2.0;
+        CHECK(seen[16] > 0 && (twos ? seen[12] == 0 : seen[12] > 0) &&
+                  seen[8] + seen[12] + seen[16] == n,
+              "growth %.1f: sizes 8 / 12 / 16 chosen %zu / %zu / %zu times of %zu", growth,
+              seen[8], seen[12], seen[16], n);
+    }
+    bool threw = false;
+    try {
+        NormalOptions no;
+        no.growth = 1.0;
+        estimate_normals(p.data(), t, no);
+    } catch (const std::invalid_argument &) {
+        threw = true;
+    }
+    CHECK(threw, "growth 1: expected invalid_argument");
+}
+
 void test_identical_for_any_thread_count() {
     std::vector<double> p = sphere_points(3000, 7, 0.01);
     PointsView v;
@@ -827,6 +1004,8 @@ int main() {
     test_grid_neighbours_match_brute_force_within_scan();
     test_view_grid_neighbours_match_brute_force();
     test_tiny_clouds();
+    test_stray_clusters_match_an_oracle();
+    test_normal_sizes_follow_the_growth();
     test_identical_for_any_thread_count();
     test_cancel_stops_every_step();
     test_degenerate_neighbourhoods_give_finite_output();

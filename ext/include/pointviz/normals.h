@@ -19,11 +19,13 @@ struct NormalOptions {
     /// Largest neighbourhood (needs a NeighbourTable of at least k_max - 1 columns). k_max ==
     /// k_min estimates with that one size everywhere.
     uint32_t k_max = 32;
-    /// The rule grows the neighbourhood (by 1.5x per step) while its normal stays within
-    /// `confidence` standard errors of every smaller one's (standard errors from the local
-    /// noise level: the median residual variance of the first ring); a larger value lets
-    /// curvature and edges tilt normals further, a smaller one stops early in noise.
+    /// The rule grows the neighbourhood (by `growth` x per step, then k_max) while its normal
+    /// stays within `confidence` standard errors of every smaller one's (standard errors from
+    /// the local noise level: the median residual variance of the first ring); a larger value
+    /// lets curvature and edges tilt normals further, a smaller one stops early in noise.
     double confidence = 3.0;
+    /// Factor between consecutive sizes tried (> 1): 1.5 tries 8, 12, 18, 27, 32 for k 8-32.
+    double growth = 1.5;
     int threads = 0;   ///< 0: all cores
 };
 
