@@ -188,12 +188,22 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
         finally:
             if radii_done is not None:
                 radii_done()
-    if fitting is not None:  # (an error here leaves the camera's daemon thread to end alone)
-        if radii_done is not None:
-            radii_done()  # the build needs them
-        RenderSettings(**render_kwargs(args))  # bad options fail before the tree
-        scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto", kw)
-        scene.bounds()  # the frame's bounds and ground level, computed once, now
+    if fitting is not None:
+        try:
+            if radii_done is not None:
+                radii_done()  # the build needs them
+            RenderSettings(**render_kwargs(args))  # bad options fail before the tree
+            scene = handed_over_scene(loaded, lights, args.ground or "auto", args.look or "auto",
+                                      kw)
+            scene.bounds()  # the frame's bounds and ground level, computed once, now
+        except BaseException:
+            # Ctrl-C (at the "normals" or "built" stage) or an error: the background threads end
+            # before the exception leaves. A daemon thread still in native code when the
+            # interpreter finalises is ended by pthread_exit, whose unwinding through C++ frames
+            # aborts the process ("terminate called without an active exception", exit -6
+            # instead of 130, seen under load).
+            _settle(fitting, radii_done)
+            raise
         camera = fitting()
     camera = _sized(camera, args)
     if prepare and fitting is None:
@@ -268,7 +278,16 @@ def _in_background(name: str, work):
             raise value
         return value
 
+    wait.thread = thread
     return wait
+
+
+def _settle(*waits) -> None:
+    """Wait for the threads behind :func:`_in_background`'s wait functions (None: skipped)
+    without taking their results: on the way out of an error, so that none outlives it."""
+    for wait in waits:
+        if wait is not None:
+            wait.thread.join()
 
 
 def handed_over_scene(cloud, lights, ground, look, options: dict):

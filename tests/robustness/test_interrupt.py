@@ -152,6 +152,50 @@ def test_ctrl_c_at_each_stage_exits_130_with_one_line_and_leaves_no_file(sweep, 
 # ------------------------------------------------------------------------ in-process mechanism
 
 
+@pytest.mark.parametrize("where", ["build", "radii"])
+def test_no_background_thread_outlives_a_cancelled_render(tmp_path, monkeypatch, where):
+    """`render` fits the camera (and estimates the radii) on daemon threads beside the tree's
+    build. Cancelled there, the command must not leave them running: a daemon thread still in
+    native code when the interpreter finalises aborts the process (exit -6, seen under load).
+    The oracle: once the exception is out, no such thread is alive, however slow they were."""
+    import threading
+
+    from pointviz.cli import build_parser
+    from pointviz.commands import common
+
+    (tmp_path / "in.ply").write_bytes(S.ply_binary(S.sample_points(3000, seed=3)))
+    args = build_parser(["render"]).parse_args(
+        ["render", str(tmp_path / "in.ply"), "-o", str(tmp_path / "out.png")])
+    finished = []
+    fit = Camera.fit.__func__
+
+    def slow_fit(cls, *a, **kw):
+        time.sleep(0.5)
+        finished.append("camera")
+        return fit(cls, *a, **kw)
+
+    monkeypatch.setattr(Camera, "fit", classmethod(slow_fit))
+    if where == "build":
+        def cancelled(*a, **kw):
+            raise CancelledError("cancelled at the build")
+
+        monkeypatch.setattr(common, "handed_over_scene", cancelled)
+    else:  # the radii's estimation fails while the camera is still being fitted
+        def failing(loaded, path):
+            def wait():
+                raise CancelledError("cancelled at the radii")
+
+            wait.thread = threading.Thread(target=lambda: None)
+            wait.thread.start()
+            return wait
+
+        monkeypatch.setattr(common, "_radii_in_background", failing)
+    with pytest.raises(CancelledError):
+        common.make_scene_and_camera(args, hand_over=True)
+    alive = [t.name for t in threading.enumerate() if t.name.startswith("pointviz-")]
+    assert alive == [] and finished == ["camera"]
+
+
 def test_stage_names_are_checked():
     with pytest.raises(ValueError, match="unknown stage"):
         interrupt.stage("halfway")
