@@ -33,8 +33,8 @@ OFFSETS_PIXEL_ERROR = 0.0151
 #: The share of the budget above its floor (lod.h: kBudgetFloor) the offsets may take, as each
 #: kind of secondary ray's visibility model may (lod.h: kShadowFlipWeight).
 OFFSETS_BUDGET_SHARE = 0.25
-#: lod.h's kBudgetFloor: the error of a frame in which nothing stops.
-BUDGET_FLOOR = 0.0005
+#: The error of a frame in which nothing stops (the core's lod.h: kBudgetFloor).
+BUDGET_FLOOR = _core.BUDGET_FLOOR
 
 
 @dataclass

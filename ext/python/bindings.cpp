@@ -26,6 +26,7 @@
 #include "pointviz/dispatch.h"
 #include "pointviz/kdtree.h"
 #include "pointviz/preprocess.h"
+#include "pointviz/lod.h"
 #include "pointviz/render.h"
 #include "pointviz/tree.h"
 #include "pygeometry.h"
@@ -480,6 +481,8 @@ OrientOptions orient_options(const OrientArgs &args, std::optional<std::array<do
 
 NB_MODULE(_core, m) {
     m.doc() = "pointviz C++ core: surfel hierarchy, traversal and rendering";
+    // the error of a frame in which nothing stops (lod.h), for the budget's share in Python
+    m.attr("BUDGET_FLOOR") = double(kBudgetFloor);
 
     // pointviz::Cancelled (a core call stopped by its Progress) -> pointviz.CancelledError.
     nb::register_exception_translator([](const std::exception_ptr &p, void *) {

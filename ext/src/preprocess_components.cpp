@@ -103,7 +103,7 @@ StrayResult find_stray_clusters(const double *points, const NeighbourTable &nb,
             const uint32_t *row = nb.row(i);
             for (uint32_t m = 0; m < nb.k; ++m) {
                 if (inline_links ? !linked(i, row[m]) : !link[i * nb.k + m]) continue;
-                uint32_t c = find_root(parent, nb.row(i)[m]);
+                uint32_t c = find_root(parent, row[m]);
                 if (c > a) {
                     parent[c] = a;
                 } else if (c < a) {
