@@ -360,6 +360,8 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         if self.live is not None:  # the live view's frames of the old up are never shown
             self._live_tick()
             self._live_floor = self.live_generation
+        if self.automation is not None and self.automation.state == "rendering":
+            self._on_render()  # the scripted render it cancelled, of the new scene
         self.timings.setdefault("up_changes", []).append(
             {"up": list(change.scene.up), "seconds": time.monotonic() - t0})
 
