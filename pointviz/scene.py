@@ -50,19 +50,24 @@ class SceneObject:
 
 
 #: What :meth:`Scene.replace` may change: the constructor's arguments except ``up`` and the
-#: surfel options (a new up or new trees make a new scene: construct one).
+#: surfel options (new trees make a new scene: construct one; a new up: :meth:`Scene.with_up`).
 REPLACEABLE = ("clouds", "materials", "lights", "ground", "background", "ambient", "sky", "look")
+#: What the constructor may resolve from the scene's up when left to it: the "auto" look, and
+#: the ground, ambient light and sky that come with the look. :meth:`Scene.with_up` resolves
+#: again those a scene left to it.
+UP_RESOLVED = ("look", "ground", "ambient", "sky")
 
 
 class _Built:
     """What a scene builds on first use, in this process: the SurfelScene of each cloud object
-    and each bare cloud's extent. Shared by the copies :meth:`Scene.replace` makes with the
-    same objects (their trees are built once, whichever copy asks first); never pickled."""
+    and each bare cloud's extent per up direction. Shared by the copies :meth:`Scene.replace`
+    and :meth:`Scene.with_up` make with the same objects (their trees are built once, whichever
+    copy asks first: a tree does not depend on the up); never pickled."""
 
     def __init__(self, n: int) -> None:
         self.lock = threading.Lock()
         self.geometries: list = [None] * n
-        self.extents: list = [None] * n
+        self.extents: dict = {}  # (object index, up tuple) -> (lo, hi, level)
 
 
 def _portable(options) -> dict:
@@ -165,6 +170,9 @@ class Scene:
             materials = [materials for _ in clouds]
         if len(materials) != len(clouds):
             raise InputError(f"materials: {len(materials)} given for {len(clouds)} clouds")
+        auto = frozenset(name for name, value in (("look", look), ("ground", ground),
+                                                  ("ambient", ambient), ("sky", sky))
+                         if value is None or (isinstance(value, str) and value == "auto"))
         if up is None:
             first = clouds[0].cloud if isinstance(clouds[0], SurfelScene) else clouds[0]
             up = getattr(first, "up", None)
@@ -214,7 +222,7 @@ class Scene:
                    look=look, ground=ground, background=background, up=up, ambient=ambient,
                    sky=MappingProxyType(sky), _scene_options=options,
                    _build_options=(options,) * len(objects), _built=_Built(len(objects)),
-                   _memo={})
+                   _memo={}, _auto=auto)
 
     def _init(self, **values) -> None:
         for name, value in values.items():
@@ -244,9 +252,33 @@ class Scene:
         """
         unknown = set(changes) - set(REPLACEABLE)
         if unknown:
+            hint = "; a new up: Scene.with_up()" if "up" in unknown else ""
             raise TypeError(f"Scene.replace() got unexpected field(s) {sorted(unknown)} "
-                            f"(it changes {', '.join(REPLACEABLE)})")
-        new_look = "look" in changes
+                            f"(it changes {', '.join(REPLACEABLE)}{hint})")
+        return self._copy(self.up, changes)
+
+    def with_up(self, up) -> Scene:
+        """A copy seen with another up direction; the objects and their trees are shared (a
+        tree does not depend on the up), the ground level and bounds along the new up are
+        computed on first use, and what the constructor resolved from the old up because it
+        was left to it (an "auto" look, and the ground, ambient light and sky that came with
+        the look: :data:`UP_RESOLVED`) is resolved again, as ``Scene(..., up=up)`` would.
+        Lights given in world coordinates stay where they are.
+
+        Raises
+        ------
+        InputError
+            For an up that is not a non-zero, finite 3-vector.
+        """
+        up = _unit(up, "up")
+        if np.array_equal(up, self.up):
+            return self
+        auto = {"look": "auto", "ground": "auto", "ambient": None, "sky": None}
+        return self._copy(up, {name: auto[name] for name in self._auto}, resolve=True)
+
+    def _copy(self, up, changes: dict, resolve: bool = False) -> Scene:
+        """:meth:`replace`'s and :meth:`with_up`'s copy: ``changes`` applied, ``up`` set."""
+        new_look = "look" in changes and not resolve
         same_objects = "clouds" not in changes
         kw = {"clouds": [o.geometry for o in self.objects],
               "materials": [o.material for o in self.objects],
@@ -256,7 +288,10 @@ class Scene:
               "sky": None if new_look else (dict(self.sky) or None), "look": self.look,
               **changes}
         # two_sided=False: the options already hold the resolved ``cull``
-        s = Scene(up=self.up, two_sided=False, **kw, **self._scene_options)
+        s = Scene(up=up, two_sided=False, **kw, **self._scene_options)
+        # what was left to the constructor stays so unless given now (a new look's ambient and
+        # sky are left to it again: the constructor saw None)
+        s._init(_auto=s._auto | (self._auto - set(changes)))
         if same_objects:
             s._init(_build_options=self._build_options, _built=self._built)
         else:  # a cloud kept from this scene keeps its surfel options (an unpickled one's too)
@@ -304,7 +339,8 @@ class Scene:
                 "lights": self.lights, "look": self.look, "ground": self.ground,
                 "background": self.background, "up": tuple(float(v) for v in self.up),
                 "ambient": self.ambient, "sky": dict(self.sky),
-                "scene_options": dict(self._scene_options), "key": self._memo.get("key")}
+                "scene_options": dict(self._scene_options), "key": self._memo.get("key"),
+                "auto": sorted(self._auto)}
 
     def __setstate__(self, state: dict) -> None:
         up = np.array(state["up"], dtype=np.float64)
@@ -318,7 +354,8 @@ class Scene:
                    _build_options=tuple(MappingProxyType({} if o is None else o)
                                         for _, _, o in objects),
                    _built=_Built(len(objects)),
-                   _memo={} if state.get("key") is None else {"key": state["key"]})
+                   _memo={} if state.get("key") is None else {"key": state["key"]},
+                   _auto=frozenset(state.get("auto", ())))
 
     @property
     def key(self) -> str:
@@ -387,9 +424,12 @@ class Scene:
         if isinstance(g, Geometry):
             return g.extent(self.up)
         built = self._built
-        if built.extents[i] is None:  # also once the cloud's SurfelScene exists
-            built.extents[i] = _extent_mod.cloud_extent(g.points, getattr(g, "radii", None), self.up)
-        return built.extents[i]
+        key = (i, tuple(float(v) for v in self.up))
+        extent = built.extents.get(key)
+        if extent is None:  # also once the cloud's SurfelScene exists
+            extent = built.extents.setdefault(
+                key, _extent_mod.cloud_extent(g.points, getattr(g, "radii", None), self.up))
+        return extent
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds of every object (including disk radii)."""

@@ -220,7 +220,7 @@ def test_replace_validates_like_the_constructor(blob):
         with pytest.raises(InputError) as copied:
             scene.replace(**{field_: value})
         assert str(copied.value) == str(fresh.value)
-    with pytest.raises(TypeError, match="up"):
+    with pytest.raises(TypeError, match="with_up"):
         scene.replace(up=(0, 0, 1))
     with pytest.raises(TypeError, match="interpolation"):
         scene.replace(interpolation="none")
@@ -341,3 +341,66 @@ def test_shape_kind_of_a_scene_without_its_cloud_reads_only_the_sample(rng):
         np.testing.assert_array_equal(fit_sample(sample), sample)  # taking it again: the same
         np.testing.assert_array_equal(fit_sample(view[:, :3] + ss.origin),
                                       sample[:, :3] + ss.origin)
+
+
+def _slab(rng, n=20000):
+    """A flat slab in the xy plane: terrain seen with +Z up, a wall (an object) with +Y up."""
+    p = np.c_[rng.uniform(-5, 5, n), rng.uniform(-5, 5, n), rng.uniform(0.0, 0.2, n)]
+    return PointCloud(p, np.tile([0.0, 0.0, 1.0], (n, 1)), radii=np.full(n, 0.05, np.float32))
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 1.0), (0.0, -1.0, 0.0), (0.6, 0.0, 0.8)])
+def test_with_up_is_the_scene_constructed_with_that_up_and_shares_the_trees(rng, up):
+    """Scene.with_up(u) gives what Scene(..., up=u) gives (the same key: ground level, the
+    "auto" look and what came with it), without building a tree again."""
+    from pointviz.surfels import SurfelScene
+
+    slab = _slab(rng)
+    tree = SurfelScene(_slab(np.random.default_rng(1)))
+    for clouds in ([slab], [tree], [slab, tree]):
+        scene = Scene(clouds)
+        assert scene.build() == sum(not isinstance(c, SurfelScene) for c in clouds)
+        turned = scene.with_up(up)
+        fresh = Scene(clouds, up=up)
+        assert turned.key == fresh.key
+        np.testing.assert_array_equal(turned.up, fresh.up)
+        np.testing.assert_allclose(turned.ground_point(), fresh.ground_point())
+        assert turned.look == fresh.look and turned.ground == fresh.ground
+        assert turned.build() == 0  # the trees are the scene's own
+        assert all(turned.geometry(i) is scene.geometry(i) for i in range(len(clouds)))
+        # and back: the first up's ground level again (kept per up, not overwritten)
+        back = turned.with_up(scene.up)
+        np.testing.assert_allclose(back.ground_point(), scene.ground_point())
+        assert back.key == scene.key
+    assert scene.with_up(scene.up) is scene
+
+
+def test_with_up_resolves_again_only_what_was_left_to_the_constructor(rng):
+    """A flat slab: studio with +Y up (a wall), outdoor with +Z (terrain). An "auto" look
+    follows the up, with its ground and sky; a look, ground or sky given stays."""
+    from pointviz.scene import GROUND_MATERIALS, LOOKS
+
+    slab = _slab(rng)
+    auto = Scene(slab)
+    assert auto.look == LOOKS["studio"] and auto.ground is not None
+    z = auto.with_up((0, 0, 1))
+    assert z.look == LOOKS["outdoor"] and z.ground is None and dict(z.sky) == dict(LOOKS["outdoor"].sky or {})
+    assert z.with_up((0, 1, 0)).look == LOOKS["studio"]
+    given = Scene(slab, look="studio", ground="mirror", sky=(0.5, 0.5, 0.5)).with_up((0, 0, 1))
+    assert given.look == LOOKS["studio"] and given.ground == GROUND_MATERIALS["mirror"]
+    assert dict(given.sky)["zenith"] == (0.5, 0.5, 0.5)
+    # a copy remembers what was left to the constructor, through replace() and pickling
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(auto.replace(background=(1.0, 1.0, 1.0))))
+    assert copy.with_up((0, 0, 1)).look == LOOKS["outdoor"]
+    # with_look gives a look: the up no longer changes it
+    assert auto.with_look("studio").with_up((0, 0, 1)).look == LOOKS["studio"]
+
+
+def test_with_up_rejects_a_bad_up_by_name(blob):
+    from pointviz.errors import InputError
+
+    for bad in ((0, 0, 0), (np.nan, 1, 0), (1, 2)):
+        with pytest.raises(InputError, match="up"):
+            Scene(blob).with_up(bad)

@@ -682,3 +682,340 @@ def test_live_view_difference_sees_through_the_upscale_and_not_past_another_pict
     assert live_view_difference(smooth, image) < 0.5 * live_view_difference(panel, image[::-1])
     assert live_view_difference(panel, image[::-1]) > 50
     assert live_view_difference(panel[:0], image) == float("inf")
+
+
+# ------------------------------------------------------------------------------ the Up control
+
+#: A z-up object: a tall box along +z (0.5 x 0.5 x 2.5) whose top sixth is red, the rest blue.
+TALL_BOX_SNIPPET = """import numpy as np
+from pointviz.cloud import PointCloud
+from pointviz.shapes import box
+_b = box(8000, size=(0.5, 0.5, 2.5))
+_p = np.asarray(_b.points)
+cloud = PointCloud(_p, normals=_b.normals, radii=_b.radii,
+                   colors=np.where((_p[:, 2] > 0.85)[:, None], [0.9, 0.1, 0.1], [0.3, 0.45, 0.85]))
+"""
+#: A pixel shows the box when its channels spread by more than this (8-bit) and it is red or
+#: blue: the preview's sky and ground and the traced ground and shadows are greys (spread < 30),
+#: the box's faces are saturated blue or red (spread > 80), lit or in shade (the pyvista
+#: window's orange Render button is neither).
+BOX_SPREAD = 50
+
+
+def tall_box():
+    ns: dict = {}
+    exec(TALL_BOX_SNIPPET, ns)  # noqa: S102 - the same cloud as the GUI scripts build
+    return ns["cloud"]
+
+
+#: Where the box is in a picture (h, w, 3) uint8, as source: the test and the driver scripts
+#: (which wait for a window to show what it drew) run the same checks. ``box_on_screen`` gives
+#: its pixels' extent (the 1-99th percentiles of their rows and columns, so a few stray pixels
+#: do not count) and the mean row of its red and of its blue pixels, or None without a box.
+BOX_CHECKS = f"""
+import numpy as np
+
+def box_on_screen(img):
+    a = img.astype(np.int32)
+    r, g, b = a[..., 0], a[..., 1], a[..., 2]
+    saturated = a.max(axis=2) - a.min(axis=2) > {BOX_SPREAD}
+    red = saturated & (r > np.maximum(g, b) + 40) & (np.abs(g - b) < 50)  # not orange
+    blue = saturated & (b > r + 40) & (b > g)
+    rows, cols = np.nonzero(red | blue)
+    if len(rows) <= 500:
+        return None
+    r0, r1 = np.percentile(rows, [1, 99])
+    c0, c1 = np.percentile(cols, [1, 99])
+    return {{"height": float(r1 - r0), "width": float(c1 - c0),
+            "red_row": float(np.nonzero(red)[0].mean()) if red.any() else None,
+            "blue_row": float(np.nonzero(blue)[0].mean()) if blue.any() else None}}
+
+def standing(img):
+    b = box_on_screen(img)
+    return (b is not None and b["height"] > 1.5 * b["width"] and b["red_row"] is not None
+            and b["red_row"] < b["blue_row"])
+
+def lying(img):
+    b = box_on_screen(img)
+    return b is not None and b["width"] > 1.5 * b["height"]
+"""
+_checks: dict = {}
+exec(BOX_CHECKS, _checks)  # noqa: S102 - defined just above
+
+
+def assert_standing(img, what):
+    assert _checks["standing"](img), \
+        f"{what}: the box is not standing, red top up: {_checks['box_on_screen'](img)}"
+
+
+def assert_lying(img, what):
+    assert _checks["lying"](img), f"{what}: the box is not lying: {_checks['box_on_screen'](img)}"
+
+
+def test_up_labels_vectors_and_the_render_option():
+    assert model.up_vector("+Z") == model.up_vector("z") == (0.0, 0.0, 1.0)
+    assert model.up_vector("-y") == (0.0, -1.0, 0.0)
+    assert model.up_vector([0, 0, 3]) == (0.0, 0.0, 1.0)
+    for bad in ("w", "++z", (0, 0, 0), (np.inf, 0, 0), (1, 2)):
+        with pytest.raises(InputError, match="up"):
+            model.up_vector(bad)
+    for label, axis in model.UP_AXES.items():
+        assert model.up_label(axis) == label
+        assert model.up_choices(axis) == list(model.UP_AXES)
+    odd = (0.1, -1.0, 0.0)
+    assert model.up_choices(odd)[0] == model.up_label(odd) and len(model.up_choices(odd)) == 7
+    assert model.up_option((0, 0, 1), (0, 1, 0)) == "--up z"
+    assert model.up_option((0, 0, -1), (0, 1, 0)) == "--up=-z"
+    assert model.up_option((0, 1, 0), (0, 1, 0)) == ""
+    # the option as the CLI reads it gives the viewer's up back
+    from pointviz.commands.common import parse_up
+
+    for up in [*model.UP_AXES.values(), model.up_vector(odd)]:
+        opt = model.up_option(up, (0.0, 1.0, 0.0)) or "--up y"
+        text = opt.split("=", 1)[1] if "=" in opt else opt.split()[1]
+        np.testing.assert_allclose(model.up_vector(parse_up(text)), up, atol=1e-6)
+    assert model.ViewerSettings(up="z").updated(spp=2).up == (0.0, 0.0, 1.0)
+    assert model.ViewerSettings(**model.ViewerSettings(up=(0, 0, 1)).to_dict()).up == (0, 0, 1)
+
+
+@pytest.mark.parametrize("up", ["+Z", "-X", (0.3, 0.0, 0.9)])
+def test_change_up_frames_like_camera_fit_with_that_up(up):
+    """The Up control's model function: its camera is Camera.fit(scene, up=...) itself (same
+    eye, target, up, field of view and size), its scene is the one constructed with that up
+    (the same key), the trees are the input scene's, and render_scene traces it."""
+    from pointviz.scene import Scene
+
+    cloud = tall_box()
+    source = model.as_scene(cloud)
+    assert source.build() == 1
+    settings = model.ViewerSettings(spp=1)
+    change = model.change_up(source, settings, up, 320, 240)
+    u = model.up_vector(up)
+    direct = Camera.fit(source, up=u, fov_deg=model.VIEW_FOV_DEG, width=320, height=240)
+    for name in ("eye", "target", "up"):
+        np.testing.assert_allclose(getattr(change.camera, name), getattr(direct, name),
+                                   rtol=1e-12, atol=1e-12)
+    assert (change.camera.fov_deg, change.camera.width, change.camera.height) == \
+        (direct.fov_deg, 320, 240)
+    assert change.settings.up == u and change.settings.spp == 1
+    assert change.scene.key == Scene(cloud, up=u).key
+    assert change.scene.build() == 0 and change.scene.geometry(0) is source.geometry(0)
+    traced = model.render_scene(source, change.settings)
+    np.testing.assert_array_equal(traced.up, u)
+    # the light keeps its elevation above the new up; the ground plane lies under the box
+    light = traced.lights[0].direction
+    assert np.degrees(np.arcsin(np.dot(light, u))) == pytest.approx(settings.light_elevation_deg)
+    heights = np.asarray(cloud.points) @ np.asarray(u)
+    assert np.dot(traced.ground_point(), u) <= heights.min() + 1e-9
+
+
+def test_an_upright_box_renders_standing_after_the_up_change():
+    """The oracle for the pictures below, without a window: the tall box framed for +Y (the
+    default) lies on its side, framed and traced for +Z it stands with its red top up."""
+    cloud = tall_box()
+    source = model.as_scene(cloud)
+    settings = model.ViewerSettings(spp=1)
+    lying = render(model.render_scene(source, settings),
+                   model.view_camera(source, 160, 120), **settings.render_kwargs())
+    assert_lying(lying.to_srgb8(), "default up")
+    change = model.change_up(source, settings, "+Z", 160, 120)
+    frame = render(model.render_scene(source, change.settings), change.camera,
+                   **change.settings.render_kwargs())
+    assert_standing(frame.to_srgb8(), "up +Z")
+
+
+#: The picture checks of box_on_screen, for driver scripts that wait for a window to show
+#: what it drew (under load the X server presents a redraw seconds late).
+UP_DRIVER_SNIPPET = BOX_CHECKS + """
+import json, threading, time, traceback
+import numpy as np
+import pointviz
+from pointviz.images import encode_png
+from pointviz.viewer.o3d_automation import save_frame_npz
+
+def grab(v, panel, want, name, timeout=120):
+    # the panel as presented, grabbed until it shows what is wanted (or the time is up: the
+    # test then fails on the picture saved)
+    deadline = time.monotonic() + timeout
+    while True:
+        x, y, w, h = v.call(v.widget_rects, redraw=False)[panel]
+        img = v.screenshot()[y:y + h, x:x + w]
+        if want(img) or time.monotonic() > deadline:
+            open(name, "wb").write(encode_png(np.ascontiguousarray(img)))
+            return want(img)
+        v.call(v.preview.force_redraw)
+        time.sleep(0.3)
+
+def wait_for(v, what, cond, timeout=300):
+    deadline = time.monotonic() + timeout
+    while not v.call(cond, redraw=False):
+        assert time.monotonic() < deadline, f"{what}: not within {timeout} s"
+        time.sleep(0.05)
+
+def pick(v, combo, text):
+    # the Up combobox as a user sets it: the item selected, then the handler the widget calls
+    def run():
+        combo.selected_text = text
+        assert combo.selected_text == text, (combo.selected_text, text)
+        v._on_up_selected(combo.selected_text, combo.selected_index)
+    v.call(run)
+"""
+
+
+def _box_driver(tmp_path, body: str, view_args: str) -> dict:
+    """Open the viewer on the tall box (``pointviz.view(cloud, VIEW_ARGS)``) and run ``body``
+    (a driver's statements, with ``v``, ``res`` and UP_DRIVER_SNIPPET's helpers) on a thread;
+    a failure in it closes the window and fails the test with its traceback."""
+    drive = textwrap.indent(textwrap.dedent(body).strip("\n"), " " * 8)
+    script = (TALL_BOX_SNIPPET + UP_DRIVER_SNIPPET + "\nres = {}\n\ndef drive(v):\n    try:\n"
+              + drive + "\n    except BaseException:\n        res['error'] = traceback.format_exc()\n"
+              "    v.app.post_to_main_thread(v.window, v.window.close)\n\n"
+              f"v = pointviz.view(cloud, {view_args}, on_ready=lambda v: threading.Thread("
+              "target=drive, args=(v,), daemon=True).start())\n"
+              "print('RESULT' + json.dumps(res, default=str))\n")
+    return _driver_result(_python(script, tmp_path))
+
+
+@pytest.mark.gui
+@needs_display
+def test_up_control_stands_a_z_up_object_and_render_follows(tmp_path):
+    """A z-up box opened with the default up (+Y) lies on its side in the preview; after +Z is
+    picked in the Up control it stands with its red top at the top, in the preview and in the
+    frame Render traces then (which equals a direct render of the scene with that up). A
+    render in flight when the up changes is cancelled and its frame never shown; Copy camera
+    then gives a camera that `pointviz render --up z` frames the same way."""
+    res = _box_driver(tmp_path, f"""
+                res["items"] = v.call(lambda: [v.cmb_up.get_item(i)
+                                               for i in range(v.cmb_up.number_of_items)])
+                res["start"] = v.call(lambda: v.cmb_up.selected_text)
+                res["before"] = grab(v, "preview", lying, "before.png")
+                v.call(lambda: v._set(spp=4096))
+                v.call(v._on_render)                   # a render that cannot finish
+                wait_for(v, "first progress report", lambda: v.progress.value > 0)
+                th = v.worker.thread
+                pick(v, v.cmb_up, "+Z")
+                th.join({STOP_TIMEOUT_S})
+                res["in_flight_ended"] = not th.is_alive()
+                v.call(lambda: None)                   # what it posted has been handled
+                res["frame_after_cancel"] = v.call(lambda: v.frame is not None)
+                res["job_after_cancel"] = v.call(lambda: v.job is not None)
+                res["label_after_cancel"] = v.call(lambda: v.render_label.text)
+                res["selected"] = v.call(lambda: v.cmb_up.selected_text)
+                res["after"] = grab(v, "preview", standing, "after.png")
+                v.call(v._on_copy_camera)
+                v.call(v.window.close_dialog)
+                res["camera_json"] = v.last_camera_json
+                res["command"] = v.last_camera_command
+                v.call(lambda: v._set(spp=2))
+                v.call(v._on_render)
+                wait_for(v, "the frame", lambda: v.frame is not None)
+                v.call(lambda: (v.frame.save("frame.png"),
+                                save_frame_npz("frame.npz", v.frame, v.frame_camera)))
+                res["shown"] = grab(v, "result", standing, "shown.png")
+                res["report"] = v.call(v.report)
+        """, "width=320, height=400")
+    assert res["items"] == list(model.UP_AXES) and res["start"] == "+Y"
+    assert_lying(_load_png(tmp_path / "before.png"), "preview, up +Y")
+    assert res["in_flight_ended"], "the render in flight went on after the up change"
+    assert not res["frame_after_cancel"] and not res["job_after_cancel"], res
+    assert "done" not in res["label_after_cancel"] and res["selected"] == "+Z"
+    assert_standing(_load_png(tmp_path / "after.png"), "preview, up +Z")
+    assert_standing(_load_png(tmp_path / "frame.png"), "rendered frame, up +Z")
+    assert_standing(_load_png(tmp_path / "shown.png"), "frame panel, up +Z")
+    report = res["report"]
+    assert report["up"] == [0.0, 0.0, 1.0]
+    # the frame is the scene traced with that up: a direct render with the same camera
+    data = np.load(tmp_path / "frame.npz")
+    camera = Camera.from_dict({k: v for k, v in json.loads(str(data["camera"])).items()
+                               if k not in ("format", "version")})
+    settings = model.ViewerSettings(**report["settings"])
+    assert settings.up == (0.0, 0.0, 1.0)
+    direct = render(model.render_scene(model.as_scene(tall_box()), settings), camera,
+                    **settings.render_kwargs())
+    np.testing.assert_array_equal(data["color"], direct.color)
+    # Copy camera: the current view, and the command that renders it with the viewer's up
+    assert res["command"] == "pointviz render --camera CAM.json --up z"
+    (tmp_path / "cam.json").write_text(res["camera_json"])
+    copied = Camera.from_json(tmp_path / "cam.json")
+    assert copied.true_up[2] > 0.9
+    import open3d as o3d
+
+    ply = tmp_path / "box.ply"
+    assert o3d.io.write_point_cloud(str(ply), tall_box().to_open3d())
+    cli = subprocess.run([sys.executable, "-m", "pointviz.cli", "render", str(ply), "--camera",
+                          str(tmp_path / "cam.json"), "--up", "z", "--width", "160",
+                          "--height", "200", "--spp", "1", "-o", str(tmp_path / "cli.png")],
+                         check=False, capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
+    assert cli.returncode == 0, cli.stderr[-2000:]
+    assert_standing(_load_png(tmp_path / "cli.png"), "pointviz render --camera (copied) --up z")
+
+
+@pytest.mark.gui
+@needs_display
+def test_view_cli_up_sets_the_start_value(tmp_path):
+    """``pointviz view F --up z``: the Up control starts at +Z and the box stands."""
+    import open3d as o3d
+
+    ply = tmp_path / "box.ply"
+    assert o3d.io.write_point_cloud(str(ply), tall_box().to_open3d())
+    out = subprocess.run([sys.executable, "-m", "pointviz.cli", "view", str(ply), "--up", "z",
+                          "--screenshot", str(tmp_path / "shot.png"), "--report",
+                          str(tmp_path / "report.json")],
+                         check=False, capture_output=True, text=True, timeout=GUI_TIMEOUT_S)
+    assert out.returncode == 0, out.stderr[-2000:]
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["up"] == [0.0, 0.0, 1.0] and report["up_control"] == "+Z"
+    x, y, w, h = report["rects"]["preview"]
+    assert_standing(_load_png(tmp_path / "shot.png")[y:y + h, x:x + w], "view --up z")
+
+
+@pytest.mark.gui
+@needs_display
+def test_up_change_in_live_mode_traces_the_new_scene(tmp_path):
+    """With the live viewport on, an up change re-frames the view and the live frames that are
+    shown from then on are of the new scene (their request is the one made with it; older
+    ones are dropped), showing the box standing."""
+    res = _box_driver(tmp_path, """
+                v.call(lambda: v.set_live(True), timeout=120)
+                wait_for(v, "first live frame", lambda: v.live_frame is not None)
+                res["before"] = grab(v, "preview", lying, "before.png")
+                pick(v, v.cmb_up, "+Z")
+                floor = v.call(lambda: v._live_floor)
+                wait_for(v, "a live frame of the new up",
+                         lambda: v.live_frame.generation >= floor and not v.live_frame.moving)
+                res["floor"] = floor
+                res["shown_generation"] = v.call(lambda: v.live_frame.generation)
+                res["after"] = grab(v, "preview", standing, "after.png")
+                res["errors"] = v.call(lambda: v.live_stats["errors"])
+        """, "width=96, height=120")
+    assert res["floor"] >= 2 and res["shown_generation"] >= res["floor"] and not res["errors"]
+    assert_lying(_load_png(tmp_path / "before.png"), "live view, up +Y")
+    assert_standing(_load_png(tmp_path / "after.png"), "live view, up +Z")
+
+
+@pytest.mark.gui
+@needs_display
+def test_pyvista_u_key_turns_the_up_and_render_follows(tmp_path):
+    """The pyvista window has no settings panel: its ``u`` key takes the next up (+Y -> +Z);
+    the preview and the frame traced afterwards show the box standing, and the frame is the
+    direct render of the scene with that up."""
+    _python(f"""
+        {TALL_BOX_SNIPPET.replace(chr(10), chr(10) + '        ')}
+        import pointviz
+        pointviz.view(cloud, backend="pyvista", render=True, screenshot="shot.png",
+                      frame="frame.npz", report="report.json", spp=2,
+                      on_ready=lambda v: v.on_next_up())
+        """, tmp_path)
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["up"] == [0.0, 0.0, 1.0]
+    shot = _load_png(tmp_path / "shot.png")
+    for panel in ("preview", "result"):
+        x, y, w, h = report["rects"][panel]
+        assert_standing(shot[y:y + h, x:x + w], f"pyvista {panel}, up +Z")
+    data = np.load(tmp_path / "frame.npz")
+    camera = Camera.from_dict({k: v for k, v in json.loads(str(data["camera"])).items()
+                               if k not in ("format", "version")})
+    settings = model.ViewerSettings(**report["settings"])
+    direct = render(model.render_scene(model.as_scene(tall_box()), settings), camera,
+                    **settings.render_kwargs())
+    np.testing.assert_array_equal(data["color"], direct.color)

@@ -34,7 +34,8 @@ def view(cloud_or_scene, backend: str = "open3d", *, camera=None, settings=None,
         Initial view (default: the whole scene).
     settings : ViewerSettings, optional
         Default: from the scene (its light and ground), updated by ``setting_overrides``
-        (any :class:`~pointviz.viewer.model.ViewerSettings` field, e.g. ``spp=16``).
+        (any :class:`~pointviz.viewer.model.ViewerSettings` field, e.g. ``spp=16``, or
+        ``up="+Z"``: the Up control's start value, the scene seen with that up).
     render : bool
         Press Render once the preview is up.
     live : bool

@@ -61,6 +61,12 @@ _VIRIDIS = np.array([[0.267, 0.005, 0.329], [0.255, 0.267, 0.530], [0.164, 0.471
                      [0.993, 0.906, 0.144]], dtype=np.float32)
 #: Percentiles that span the intensity colour scale (robust to a few saturated returns).
 INTENSITY_PERCENTILES = (1.0, 99.0)
+#: The Up control's choices: world axes by label.
+UP_AXES = {"+X": (1.0, 0.0, 0.0), "+Y": (0.0, 1.0, 0.0), "+Z": (0.0, 0.0, 1.0),
+           "-X": (-1.0, 0.0, 0.0), "-Y": (0.0, -1.0, 0.0), "-Z": (0.0, 0.0, -1.0)}
+#: Vertical field of view of the camera that frames the scene when the viewer opens and when the
+#: up changes, degrees.
+VIEW_FOV_DEG = 40.0
 
 
 @dataclass
@@ -97,6 +103,9 @@ class ViewerSettings:
     threads : int or None
     denoise : bool
         Denoise the ray-traced frame (Open Image Denoise, the ``denoise`` extra).
+    up : (3,) float or None
+        The scene's up direction as the viewer shows it (a unit vector; an axis label such as
+        "+Z" or "z" is accepted), or None: the input scene's own (see :func:`scene_with_up`).
     """
 
     color_mode: str = "rgb"
@@ -117,8 +126,11 @@ class ViewerSettings:
     seed: int = DEFAULTS.seed
     threads: int | None = DEFAULTS.threads
     denoise: bool = DEFAULTS.denoise
+    up: tuple | None = None
 
     def __post_init__(self) -> None:
+        if self.up is not None:
+            self.up = up_vector(self.up)
         self.validate()
 
     def validate(self) -> ViewerSettings:
@@ -196,6 +208,88 @@ def light_angles(direction, up) -> tuple[float, float]:
     return az, el
 
 
+def up_vector(value) -> tuple[float, float, float]:
+    """A unit up vector from an axis label ("+Z", "-y", "x": :data:`UP_AXES`) or three numbers.
+
+    Raises
+    ------
+    InputError
+        Naming ``up``, for anything else (a zero or non-finite vector).
+    """
+    if isinstance(value, str):
+        word = value.strip().upper()
+        word = word if word[:1] in "+-" else "+" + word
+        if word not in UP_AXES:
+            raise InputError(f"up: expected one of {', '.join(UP_AXES)} or three numbers, "
+                             f"got {value!r}")
+        return UP_AXES[word]
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InputError(f"up: expected one of {', '.join(UP_AXES)} or three numbers, "
+                         f"got {value!r}") from None
+    n = float(np.linalg.norm(v))
+    if not (np.all(np.isfinite(v)) and n > 0):
+        raise InputError(f"up: expected a non-zero finite vector, got {value!r}")
+    return tuple(float(x) for x in v / n)
+
+
+def up_label(up) -> str:
+    """The Up control's text for an up vector: its axis label (:data:`UP_AXES`) when it is one,
+    else its components (a depth camera's gravity, ``--up X,Y,Z``)."""
+    v = np.asarray(up_vector(up))
+    for label, axis in UP_AXES.items():
+        if np.allclose(v, axis, rtol=0.0, atol=1e-9):
+            return label
+    return "(" + ", ".join(f"{x:.3g}" for x in v) + ")"
+
+
+def up_choices(up) -> list[str]:
+    """The Up control's items: the six axes, after the scene's own up when it is none of them."""
+    label = up_label(up)
+    return list(UP_AXES) if label in UP_AXES else [label, *UP_AXES]
+
+
+def scene_with_up(scene, up):
+    """``scene`` seen with ``up`` (a vector or label; None: the scene's own), sharing its
+    trees (:meth:`pointviz.scene.Scene.with_up`); the scene itself when the up is its own."""
+    if up is None:
+        return scene
+    return scene.with_up(up_vector(up))
+
+
+def view_camera(scene, width: int, height: int, fov_deg: float = VIEW_FOV_DEG):
+    """The camera the viewer opens on, and frames the scene with after an up change: the whole
+    scene for its up (:meth:`pointviz.camera.Camera.fit`), at the preview's size."""
+    from ..camera import Camera
+
+    return Camera.fit(scene, fov_deg=fov_deg, width=int(width), height=int(height))
+
+
+@dataclass(frozen=True)
+class UpChange:
+    """What the Up control changes: the settings (their ``up``), the scene shown and traced
+    (the input scene with that up, trees shared), and the camera that frames it."""
+
+    settings: ViewerSettings
+    scene: object
+    camera: object
+
+
+def change_up(source_scene, settings: ViewerSettings, up, width: int, height: int,
+              fov_deg: float = VIEW_FOV_DEG) -> UpChange:
+    """The Up control: ``up`` (a label or vector) applied to the viewer's input scene
+    ``source_scene``; the camera re-framed for it at the preview's ``width`` x ``height``.
+
+    Nothing is read or fitted again: the trees are shared, and the ground level along the new
+    up is computed on first use (once per up). The light's azimuth and elevation are relative
+    to the up, so the light, the ground and the preview's shading turn with it.
+    """
+    new = settings.updated(up=up_vector(up))
+    scene = scene_with_up(source_scene, new.up)
+    return UpChange(new, scene, view_camera(scene, width, height, fov_deg))
+
+
 def as_scene(source):
     """The :class:`~pointviz.scene.Scene` shown by the viewer (a cloud gets default lights)."""
     from ..rendering import as_scene as _as_scene
@@ -225,10 +319,12 @@ def render_scene(scene, settings: ViewerSettings):
 
     The settings describe a single directional light (its softness comes from the scene's first
     directional light). Builds the scene's surfel trees on first use, so call it on the render
-    worker's thread, not the GUI thread.
+    worker's thread, not the GUI thread. With the settings' ``up`` the scene is seen with that
+    up (:func:`scene_with_up`: the ground, the light and an "auto" look follow it).
     """
     from ..scene import DirectionalLight
 
+    scene = scene_with_up(scene, settings.up)
     scene.build()  # the trees, once (shared with the copy returned)
     ground = scene.ground if settings.ground is None else settings.ground
     if scene.lights is None and scene.look.key <= 0:  # a look without a key light ("flat")
@@ -461,6 +557,18 @@ def output_size(settings: ViewerSettings, view_width: int, view_height: int) -> 
     if h:
         return max(1, round(h * view_width / view_height)), h
     return int(view_width), int(view_height)
+
+
+def up_option(up, source_up) -> str:
+    """The ``--up`` option that gives ``pointviz render``/``path`` the viewer's ``up`` when it is
+    not the file's own ``source_up`` (else ""): ``--up z``, ``--up=-x``, ``--up=X,Y,Z``."""
+    v = np.asarray(up_vector(up))
+    if np.allclose(v, up_vector(source_up), rtol=0.0, atol=1e-9):
+        return ""
+    label = up_label(v)
+    if label in UP_AXES:
+        return f"--up {label[1].lower()}" if label[0] == "+" else f"--up=-{label[1].lower()}"
+    return "--up=" + ",".join(f"{x:.6g}" for x in v)
 
 
 def camera_json(camera) -> str:

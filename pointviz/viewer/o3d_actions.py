@@ -48,7 +48,9 @@ class ActionsMixin:
         dlg = gui.Dialog("Camera")
         em = self.em
         layout = gui.Vert(int(0.5 * em), gui.Margins(em, em, em, em))
-        layout.add_child(gui.Label("Camera for `pointviz render --camera CAM.json`:"))
+        up = model.up_option(self.scene.up, self.source_scene.up)
+        self.last_camera_command = f"pointviz render --camera CAM.json{' ' + up if up else ''}"
+        layout.add_child(gui.Label(f"Camera for `{self.last_camera_command}`:"))
         edit = gui.TextEdit()
         edit.text_value = text.replace("\n", " ")
         layout.add_child(edit)

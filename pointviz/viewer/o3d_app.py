@@ -91,8 +91,9 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.gui = o3d.visualization.gui
         self.rendering = o3d.visualization.rendering
         self.app = self.gui.Application.instance
-        self.scene = scene
         self.settings = settings.validate()
+        self.source_scene = scene  # as given; ``scene`` is it seen with the settings' up
+        self.scene = model.scene_with_up(scene, self.settings.up)
         self.automation = automation
         self.t_start = time.monotonic() if t_start is None else t_start
         self.timings: dict = {}
@@ -127,9 +128,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.worker = RenderWorker(self._post_progress, self._post_done, self._post_error)
         self._init_live()
 
-        lo, hi = (np.asarray(b, dtype=np.float64) for b in scene.bounds())
-        self.center = 0.5 * (lo + hi)
-        self.diagonal = float(np.linalg.norm(hi - lo))
+        self._measure_scene()
 
         w, h = window_size
         self.window = self.app.create_window(title, w, h)
@@ -139,6 +138,11 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self._setup_camera(camera)
         self._apply_settings()
         self.timings["window_built_s"] = time.monotonic() - self.t_start
+
+    def _measure_scene(self) -> None:
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in self.scene.bounds())
+        self.center = 0.5 * (lo + hi)
+        self.diagonal = float(np.linalg.norm(hi - lo))
 
     # ================================================================== construction
     def _build_widgets(self) -> None:
@@ -203,6 +207,11 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
 
         # -- preview controls
         box = gui.CollapsableVert("Preview", sep, gui.Margins(0, 0, 0, 0))
+        self.cmb_up = gui.Combobox()
+        for item in model.up_choices(self.source_scene.up):
+            self.cmb_up.add_item(item)
+        self.cmb_up.set_on_selection_changed(self._on_up_selected)
+        self._labelled(box, "Up", self.cmb_up)
         self.cmb_color = self._combo(box, "Colour by", "color_mode", list(model.COLOR_MODES))
         self.sl_scale = self._slider(box, "Point scale", "point_scale", 0.25, 4.0, integer=False)
         self.num_maxpts = self._number(box, "LoD max points", "preview_max_points", True, 1000, 10**9)
@@ -302,6 +311,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.num_height.int_value = s.height
         self.cmb_display.selected_text = s.display
         self.cmb_color.selected_text = s.color_mode
+        self.cmb_up.selected_text = model.up_label(self.scene.up)
         self.sl_scale.double_value = s.point_scale
         self.num_maxpts.int_value = s.preview_max_points
         if preview_changed:
@@ -312,6 +322,48 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         if self.live is not None:  # a reloaded cloud or ground stays hidden in live mode
             self._show_splats(False)
         self.window.set_needs_layout()
+
+    def _on_up_selected(self, text, index) -> None:
+        """The Up control's handler (what the combobox calls with the item picked)."""
+        self.set_up(text)
+
+    def set_up(self, up) -> None:
+        """Show the scene with another up (a label of :data:`model.UP_AXES` or a vector): the
+        scene is seen anew (trees shared, nothing re-read), the camera frames it for that up,
+        and the ground, light and preview shading turn with it. A render under way is
+        cancelled and its frame never shown; the last frame (of the old up) is cleared."""
+        if isinstance(up, str) and up not in model.UP_AXES and up.startswith("("):
+            up = self.source_scene.up  # the scene's own up (the item made for it: no axis)
+        t0 = time.monotonic()
+        w, h = self._preview_size()
+        try:
+            change = model.change_up(self.source_scene, self.settings, up, w, h)
+        except InputError as exc:
+            self._message("Invalid setting", str(exc))
+            self._apply_settings()
+            return
+        if np.array_equal(change.scene.up, self.scene.up):
+            return
+        self.gui_trace.mark("up change")
+        if self.job is not None:  # a frame of the old up: cancelled, and ignored if it comes
+            self.worker.cancel()
+            self._end_job()
+            self.progress.value = 0.0
+        self.frame = self.mesh_frame = self.frame_camera = None
+        self.result.update_image(self.o3d.geometry.Image(np.full((8, 8, 3), 40, np.uint8)))
+        self.render_label.text = f"up {model.up_label(change.scene.up)}: press Render (R)"
+        self.settings, self.scene = change.settings, change.scene
+        self._measure_scene()
+        self._shaded_for = None  # the shading depends on the up
+        self._apply_settings(preview_changed=self.settings.color_mode == "height")
+        self.apply_camera(change.camera)
+        if self.live is not None:  # the live view's frames of the old up are never shown
+            self._live_tick()
+            self._live_floor = self.live_generation
+        if self.automation is not None and self.automation.state == "rendering":
+            self._on_render()  # the scripted render it cancelled, of the new scene
+        self.timings.setdefault("up_changes", []).append(
+            {"up": list(change.scene.up), "seconds": time.monotonic() - t0})
 
     def _apply_lighting(self) -> None:
         s = self.settings

@@ -199,6 +199,7 @@ class AutomationMixin:
         a = self.automation
         return {"timings": self.timings, "rects": self.widget_rects(),
                 "settings": self.settings.to_dict(),
+                "up": [float(v) for v in self.scene.up], "up_control": self.cmb_up.selected_text,
                 "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
                 "preview_points": len(self.preview_info.points),
                 "total_points": int(self.preview_info.total),

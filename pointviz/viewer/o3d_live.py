@@ -68,6 +68,7 @@ class LiveMixin:
         self.live = None          # the LiveRenderer while live mode is on
         self.live_frame = None    # the LiveFrame shown
         self.live_generation = 0  # the request the GUI last made
+        self._live_floor = 0      # frames of older requests are not shown (an up change)
         self.live_stats = {"frames_shown": 0, "moving_frames_shown": 0, "frames_coalesced": 0,
                            "errors": []}
         self.live_script = None
@@ -176,7 +177,7 @@ class LiveMixin:
 
     # -- GUI thread
     def _show_live(self, lf, image) -> None:
-        if self.live is None or self.closed:
+        if self.live is None or self.closed or lf.generation < self._live_floor:
             return
         tr = self.gui_trace
         if self.live_frame is None:

@@ -1,5 +1,7 @@
 """The pyvista/VTK viewer: Gaussian point splats scaled by the surfel radii on the left, the
-ray-traced frame on the right, Render on a key (``r``) and a button, Cancel on ``k``.
+ray-traced frame on the right, Render on a key (``r``) and a button, Cancel on ``k``, the next
+up direction on ``u`` (+X, +Y, +Z, -X, -Y, -Z in turn: this window has no settings panel to hold
+the Open3D viewer's Up control; :meth:`PVViewer.set_up` does the same work).
 
 Threads
 -------
@@ -42,8 +44,10 @@ class PVViewer:
     def __init__(self, scene, settings, camera=None, title="pointviz", off_screen=False,
                  window_size=DEFAULT_WINDOW_SIZE, t_start=None):
         self.pv = require("pyvista", "viewer")
-        self.scene = scene
         self.settings = settings.validate()
+        self.source_scene = scene  # as given; ``scene`` is it seen with the settings' up
+        self.scene = model.scene_with_up(scene, self.settings.up)
+        self._light = None
         self.t_start = time.monotonic() if t_start is None else t_start
         self.timings: dict = {}
         self.frame = None
@@ -74,6 +78,7 @@ class PVViewer:
         pl.subplot(0, 0)
         pl.add_key_event("r", self.on_render)
         pl.add_key_event("k", self.on_cancel)
+        pl.add_key_event("u", self.on_next_up)
         pl.add_checkbox_button_widget(lambda state: self.on_render(), value=False,
                                       position=(10, self.window_size[1] - 50), size=36,
                                       color_on="orange", color_off="orange")
@@ -99,6 +104,8 @@ class PVViewer:
         self.timings["preview_upload_s"] = time.monotonic() - t0
 
     def _add_light(self) -> None:
+        if self._light is not None:
+            self.plotter.renderers[0].RemoveLight(self._light)
         s = self.settings
         d = model.light_direction(s.light_azimuth_deg, s.light_elevation_deg, self.scene.up)
         light = self.pv.Light(position=tuple(self.center + d * self.diagonal),
@@ -106,6 +113,40 @@ class PVViewer:
                               intensity=min(1.0, s.light_intensity))
         light.positional = False
         self.plotter.add_light(light)
+        self._light = light
+
+    def on_next_up(self) -> None:
+        """The ``u`` key: the next of :data:`model.UP_AXES` after the current up."""
+        labels = list(model.UP_AXES)
+        label = model.up_label(self.scene.up)
+        self.set_up(labels[(labels.index(label) + 1) % len(labels)] if label in labels
+                    else labels[0])
+
+    def set_up(self, up) -> None:
+        """Show the scene with another up (a label of :data:`model.UP_AXES` or a vector), as
+        the Open3D viewer's Up control does (:func:`model.change_up`): trees shared, camera
+        re-framed, light and splats (height colours) anew; a render under way is cancelled and
+        its frame never shown, and the frame of the old up is taken away."""
+        w, h = self.viewport_size()
+        change = model.change_up(self.source_scene, self.settings, up, w, h)
+        if np.array_equal(change.scene.up, self.scene.up):
+            return
+        if self.job is not None:
+            self.worker.cancel()
+            self.job = None  # drain() drops the reports of a job that is no longer current
+        self.settings, self.scene = change.settings, change.scene
+        self.frame = self.frame_camera = None
+        pl = self.plotter
+        pl.subplot(0, 1)
+        pl.remove_actor("frame")
+        self._set_progress(f"up {model.up_label(self.scene.up)}: press r to render")
+        pl.subplot(0, 0)
+        self._add_splats()
+        self._add_light()
+        self._set_camera(change.camera)
+        self._update_status()
+        if not self.closed:
+            pl.render()
 
     def _set_camera(self, camera) -> None:
         from ..camera import Camera
@@ -232,6 +273,7 @@ class PVViewer:
     def report(self) -> dict:
         return {"timings": self.timings, "rects": self.widget_rects(),
                 "settings": self.settings.to_dict(),
+                "up": [float(v) for v in self.scene.up],
                 "camera": None if self.frame_camera is None else self.frame_camera.to_dict(),
                 "preview_points": len(self.preview_info.points),
                 "total_points": int(self.preview_info.total)}
