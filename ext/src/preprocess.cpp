@@ -142,6 +142,9 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     if (in.viewpoints)
         out.toward_viewpoint_flips = orient_toward(in.points, out.est.normals.data(), in.n,
                                                    in.viewpoints, in.n_viewpoints, nopt.threads);
+    else if (oopt.from_above && oopt.has_up)
+        out.orient = orient_above(in.points, out.est.normals.data(), *t, oopt, nopt.threads,
+                                  &progress);
     else
         out.orient = orient_mst(in.points, out.est.normals.data(), *t, oopt, &progress);
     return out;
@@ -167,6 +170,8 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
     }
     KnnTree tree(in.points, in.n, threads, &progress);
     NeighbourTable t = knn_all(tree, in.points, oopt.k, threads, &progress);
+    if (oopt.from_above && oopt.has_up)
+        return orient_above(in.points, normals, t, oopt, threads, &progress);
     return orient_mst(in.points, normals, t, oopt, &progress);
 }
 
