@@ -96,7 +96,8 @@ COVER_GLOBAL_CAP = 4.0
 # beside creases such as a roof's ridge; ~0.2-0.4 among scattered returns); from
 # VOLUME_SURFACE down to VOLUME_VOLUME the radius goes geometrically from the cell's to at most
 # VOLUME_FACTOR x the distance to the nearest neighbour: a volume of returns is shown as the
-# scatter it is, not as petals. A measure of thickness (RMS height over RMS in-plane distance)
+# scatter it is, not as petals. A point taken for a surface whose neighbours mostly are not
+# (returns of a canopy that happen to lie in a plane, all to one side) is bounded as they are. A measure of thickness (RMS height over RMS in-plane distance)
 # was tried first: it also took the points beside a ridge for a volume and opened it (0.3-2.1 %
 # of vertical rays missed 30-60 degree roofs, vs 0.00-0.015 % with this one and factor 1;
 # factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute".

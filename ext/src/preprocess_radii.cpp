@@ -60,6 +60,7 @@ struct Cell {
     /// (its radius is the largest): large for an isolated return, small for an elongated cell
     /// (scan lines far apart, samples close along them).
     float extent = 0.f;
+    float spacing = 0.f;  ///< the nearest neighbour's distance (with the volume bound on)
 };
 
 /// The radius of point i from its k neighbours `row` (in any order: the cell is a min over
@@ -124,6 +125,7 @@ Cell cell_radius(const double *points, const float *normals, size_t i, const uin
     // isolated or degenerate (no bisector anywhere): from the neighbour distances
     if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);
     Cell out;
+    out.spacing = d1 < inf ? float(d1) : 0.f;
     if (opt.typical_cap > 0) {
         double e = r;
         if (bounded) {
@@ -147,6 +149,31 @@ Cell cell_radius(const double *points, const float *normals, size_t i, const uin
     // rounding to float must not turn a tiny positive radius into 0
     out.radius = r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
     return out;
+}
+
+/// A point taken for a surface among neighbours most of which are not (a few returns of a
+/// canopy that happen to lie in a plane, all to one side: a petal reaching out to its k-th
+/// neighbour) is bounded as they are: at most volume_factor x its nearest neighbour's distance.
+/// Reads the first pass's flags only (the same for any thread count); marks those points.
+template <class RowOf>
+void bound_surface_among_volume(std::vector<float> &out, std::vector<Cell> &cells, uint32_t k,
+                                const CoverOptions &opt, RowOf row_of) {
+    const size_t n = out.size();
+    std::vector<uint8_t> demote(n, 0);
+    parallel_for(n, 4096, opt.threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            if (!cells[i].surface) continue;
+            const uint32_t *row = row_of(i);
+            uint32_t volume = 0;
+            for (uint32_t m = 0; m < k; ++m) volume += !cells[row[m]].surface;
+            if (2 * volume > k) demote[i] = 1;
+        }
+    });
+    for (size_t i = 0; i < n; ++i)
+        if (demote[i]) {
+            const float bound = float(opt.volume_factor) * cells[i].spacing;
+            if (bound > 0) out[i] = std::min(out[i], bound), cells[i].surface = false;
+        }
 }
 
 /// Caps `out` at opt.global_cap x its 99th percentile (clouds of at least 100 points). With
@@ -185,7 +212,7 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     const Directions dir(opt.directions);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 4096;
-    std::vector<Cell> cells(opt.typical_cap > 0 ? n : 0);
+    std::vector<Cell> cells(opt.typical_cap > 0 || opt.volume_factor > 0 ? n : 0);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
         for (size_t i = b; i < e; ++i) {
             const Cell c = cell_radius(points, normals, i, nb.row(i), k, dir, opt);
@@ -195,6 +222,8 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
+    if (opt.volume_factor > 0)
+        bound_surface_among_volume(out, cells, k, opt, [&](size_t i) { return nb.row(i); });
     apply_global_cap(out, opt, cells);
     return out;
 }
@@ -206,6 +235,10 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     std::vector<float> out(n, 0.f);
     if (n < 2 || k == 0) return out;
     k = uint32_t(std::min<size_t>(k, n - 1));
+    if (opt.volume_factor > 0) {  // the second pass reads every point's row again
+        const NeighbourTable t = knn_all(tree, points, k, opt.threads, progress);
+        return coverage_radii(points, normals, t, opt, progress);
+    }
     const Directions dir(opt.directions);
     std::vector<Cell> cells(opt.typical_cap > 0 ? n : 0);
     knn_each(tree, points, k, false, opt.threads, progress,

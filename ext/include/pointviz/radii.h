@@ -34,7 +34,9 @@ struct CoverOptions {
     /// on a sampled surface, noisy or curved, and beside a crease (a roof's ridge: one face
     /// holds most neighbours), ~0.2-0.4 among scattered returns. From f = volume_surface down to
     /// volume_volume the radius goes geometrically from the cell's to
-    /// min(cell's, volume_factor x the nearest neighbour's distance). volume_factor 0: off.
+    /// min(cell's, volume_factor x the nearest neighbour's distance); then a point taken for a
+    /// surface whose k neighbours are mostly not is bounded fully (a second pass over the rows:
+    /// the tree-searching overload stores its table then). volume_factor 0: off.
     double volume_band = 0.2, volume_surface = 0.6, volume_volume = 0.4, volume_factor = 0;
     /// Sparse returns (water, dark roofs) are not blown up to cover what they did not sample: a
     /// point whose cell is wide in most directions (its median extent over the sampled
