@@ -47,6 +47,7 @@ from .estimation import (  # noqa: F401 - re-exported: the estimation used to li
     estimate_radii,
     fit_surface,
     knn,
+    normals_and_radii,
     orient_normals,
 )
 from .settings import check_int
@@ -255,6 +256,14 @@ class PointCloud:
     @property
     def normals(self) -> np.ndarray:
         """(n, 3) float32 unit normals; estimated (and cached) on first access if not given."""
+        if self._normals is None and self._radii is None and self._lidar_at_once():
+            # LiDAR without radii: both from the normals' neighbour search (the radii would
+            # build a tree and search again)
+            est, radii = normals_and_radii(self._points, up=self.up, from_above=True,
+                                           volume=True)
+            est.setflags(write=False)
+            radii.setflags(write=False)
+            self._normals, self._radii = est, radii
         if self._normals is None:
             est = estimate_normals(self._points, viewpoints=self.viewpoints,
                                    scan_index=self.scan_index, scan_grid=self.scan_grid,
@@ -263,6 +272,14 @@ class PointCloud:
             est.setflags(write=False)
             self._normals = est
         return self._normals
+
+    def _lidar_at_once(self) -> bool:
+        """Whether normals and radii are estimated together (:func:`normals_and_radii`): a
+        cloud seen from above, without viewpoints or scans, with at least 3 distinct points."""
+        pts = self._points
+        return (getattr(self, "seen_from_above", False) and self.up is not None
+                and self.viewpoints is None and self.scan_index is None and len(pts) >= 3
+                and bool((pts != pts[0]).any()))
 
     @property
     def radii(self) -> np.ndarray:
@@ -274,8 +291,11 @@ class PointCloud:
             if len(pts) < 2 or not (pts != pts[0]).any():
                 est = estimate_radii(self._points)  # raises the specific error
             else:
+                normals = self.normals  # (LiDAR: estimates the radii with them)
+                if self._radii is not None:
+                    return self._radii
                 # LiDAR (seen from above) holds returns of vegetation, not only of surfaces
-                est = coverage_radii(pts, self.normals, volume=self.seen_from_above)
+                est = coverage_radii(pts, normals, volume=self.seen_from_above)
             est.setflags(write=False)
             self._radii = est
         return self._radii

@@ -361,6 +361,46 @@ def estimate_normals(
     return normals
 
 
+def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool = False,
+                      threads: int = 0):
+    """Normals and their coverage radii from one neighbour search, for a cloud without
+    viewpoints or scans: ``estimate_normals(points, up=up, from_above=from_above)`` and
+    ``coverage_radii(points, normals, volume=volume)``, but the radii take the first
+    :data:`COVER_K` columns of the normals' own neighbour table (sorted rows of the same tree)
+    instead of building a tree and searching again (lone-star.laz: 0.83 instead of 1.06 s).
+    The normals are the same bit for bit; the radii too but where the 10th and 11th neighbours
+    lie at the same distance (quantised LAS coordinates) and the two searches keep different
+    ones (on autzen_trim.laz 0.006 % of the radii, by at most 2e-6 of their size), and without
+    ``volume`` by a float's rounding here and there (1 ulp: that search visits its rows fused).
+
+    Returns
+    -------
+    normals : (n, 3) float32
+    radii : (n,) float32, positive
+    """
+    pts = _points(points)
+    n = len(pts)
+    if n < 3:
+        raise InputError(
+            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
+        )
+    _distinct(pts, "normals")
+    out = _core().estimate_normals(
+        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
+        NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
+        cover_k=min(COVER_K, n - 1), directions=COVER_DIRECTIONS, margin=COVER_MARGIN,
+        cap=COVER_CAP, global_cap=COVER_GLOBAL_CAP, volume=_volume(volume),
+    )
+    normals = out["normals"]
+    radii = out.get("radii")
+    if radii is None:
+        return normals, coverage_radii(pts, normals, volume=volume, threads=threads)
+    bad = ~(radii > 0)
+    if bad.any():  # stacks of duplicates, resolved as coverage_radii resolves them
+        radii[bad] = estimate_radii(pts, threads=threads)[bad]
+    return normals, radii
+
+
 def orient_normals(points, normals, *, viewpoints=None, up=None, from_above: bool = False,
                    k: int = ORIENT_K, threads: int = 0) -> np.ndarray:
     """Flip normals so that they face their scanner, or agree with their neighbours.

@@ -791,16 +791,25 @@ NB_MODULE(_core, m) {
                                  std::optional<CArray<int32_t>> scan_index,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,
                                  uint32_t k_max, double confidence, OrientArgs orient, int threads,
-                                 std::optional<CArray<int32_t>> scan_grid, double above) {
+                                 std::optional<CArray<int32_t>> scan_grid, double above,
+                                 uint32_t cover_k, uint32_t directions, double margin, double cap,
+                                 double global_cap, VolumeArgs volume) {
         PointsView v = points_view(points, viewpoints, scan_index);
         add_scan_grid(v, scan_grid);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
         OrientOptions oo = orient_options(orient, up, above);
-        NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
-        return normals_dict(o, v.n);
+        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads, volume);
+        NormalsOutput o = run_step([&](Progress &pr) {
+            return normals_points(v, no, oo, pr, cover_k ? &co : nullptr, cover_k);
+        });
+        nb::dict d = normals_dict(o, v.n);
+        if (!o.radii.empty()) d["radii"] = to_array(o.radii, {v.n});
+        return d;
     }, "points"_a, "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(), "k_min"_a,
        "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0, "scan_grid"_a.none() = nb::none(),
-       "above"_a = 0.0);
+       "above"_a = 0.0, "cover_k"_a = 0, "directions"_a = CoverOptions{}.directions,
+       "margin"_a = CoverOptions{}.margin, "cap"_a = CoverOptions{}.cap,
+       "global_cap"_a = CoverOptions{}.global_cap, "volume"_a = VolumeArgs{0, 0, 0, 0, 0});
 
     m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
                                std::optional<CArray<double>> viewpoints,
