@@ -211,6 +211,16 @@ def _orient(k: int | None = None):
     return (ORIENT_K if k is None else k, ORIENT_DISTANCE_WEIGHT, OUTWARD_UNDECIDED_MARGIN)
 
 
+def _normal_points(points) -> np.ndarray:
+    """The points of a normal estimate: at least 3, not all at one position."""
+    pts = _points(points)
+    if len(pts) < 3:
+        raise InputError(f"normals: cannot be estimated from {len(pts)} point(s), need at "
+                         "least 3; pass normals")
+    _distinct(pts, "normals")
+    return pts
+
+
 def _above(from_above, up) -> float:
     """The core's ``above``: ORIENT_ABOVE_STEEP to orient a cloud seen from above, else 0."""
     if not isinstance(from_above, (bool, np.bool_)):
@@ -337,13 +347,8 @@ def estimate_normals(
     normals : (n, 3) float32
         Unit normals, never NaN.
     """
-    pts = _points(points)
+    pts = _normal_points(points)
     n = len(pts)
-    if n < 3:
-        raise InputError(
-            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
-        )
-    _distinct(pts, "normals")
     if k is None:
         k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
     else:
@@ -378,13 +383,8 @@ def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool
     normals : (n, 3) float32
     radii : (n,) float32, positive
     """
-    pts = _points(points)
+    pts = _normal_points(points)
     n = len(pts)
-    if n < 3:
-        raise InputError(
-            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
-        )
-    _distinct(pts, "normals")
     out = _core().estimate_normals(
         pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
