@@ -64,8 +64,9 @@ OUTWARD_UNDECIDED_MARGIN = 0.2
 
 # Orientation of a cloud seen from above (aerial and most terrestrial LiDAR, which never see a
 # surface from below; PointCloud.seen_from_above, set by the LAS reader): a normal within
-# acos(ORIENT_ABOVE_STEEP) = 72.5 degrees of the up faces up; a steeper one (walls, cliffs,
-# trunks) takes the sign its oriented neighbours vote for (the core's orient_above, at most
+# acos(ORIENT_ABOVE_STEEP) = 72.5 degrees of the up faces up (beyond 45 degrees only when it
+# agrees with half of its neighbours': the core's OrientOptions::flat, agree); a steeper one
+# (walls, cliffs, trunks) takes the sign its oriented neighbours vote for (the core's orient_above, at most
 # OrientOptions::rounds rounds of propagation). Linear and on all cores instead of the spanning
 # tree's serial sort (benchmarks/README.md, "LiDAR's first minute").
 ORIENT_ABOVE_STEEP = 0.3

@@ -105,7 +105,7 @@ def test_walls_seen_from_above_face_outward(rng):
     walls = np.abs(exact[:, 2]) < 0.5
     assert info["steep"] >= walls.sum() * 0.7  # (near the creases PCA tilts them)
     facing = np.einsum("ij,ij->i", nrm, exact)
-    assert np.mean(facing[walls] > 0) > 0.95  # (a corner patch may follow a tilted seed)
+    assert np.mean(facing[walls] > 0) > 0.97  # (a corner patch may still follow a tilted seed)
     assert np.mean(facing[~walls] > 0) > 0.999
 
 

@@ -82,7 +82,19 @@ OrientResult orient_above(const double *points, float *normals, const NeighbourT
         size_t c = 0;
         for (size_t i = b; i < e; ++i) {
             const float d = up_dot(i);
-            if (std::fabs(d) >= opt.steep) {
+            // the up decides a normal near vertical, or one tilted further that lies in its
+            // neighbours' plane: one that does not (a corner's, tilted up between two walls)
+            // waits for their votes instead
+            bool decided = std::fabs(d) >= opt.flat;
+            if (!decided && std::fabs(d) >= opt.steep) {
+                uint32_t agree = 0;
+                const uint32_t *row = nb.row(i);
+                for (uint32_t m = 0; m < k; ++m)
+                    agree += std::fabs(dot3(normals + 3 * i, normals + 3 * size_t(row[m]))) >=
+                             opt.agree;
+                decided = 2 * agree >= k;
+            }
+            if (decided) {
                 done[i] = 1;
                 if (d < 0) flip[i] = 1, ++c;
             } else {

@@ -37,6 +37,10 @@ struct OrientOptions {
     /// orient_above(): |n . up| from which `up` alone decides a normal's sign (a surface tilted
     /// at most acos(steep) from vertical is seen from its upper side).
     double steep = 0.3;
+    /// orient_above(): from |n . up| >= steep up to `flat`, the up decides only a normal that
+    /// agrees (|n_i . n_j| >= `agree`) with half of its k neighbours' or more: a corner's PCA
+    /// normal, tilted up between two walls, would lead the walls beside it inward.
+    double flat = 0.7, agree = 0.9;
     /// orient_above(): rounds of propagation to the steeper normals.
     uint32_t rounds = 32;
 };
@@ -50,7 +54,8 @@ struct OrientResult {
 };
 
 /// Orients `normals` in place (sign only) for a cloud seen from above (opt.from_above): a normal
-/// with |n . up| >= opt.steep faces up; a steeper one (a wall, a cliff, a trunk) takes the sign
+/// with |n . up| >= opt.steep faces up (below opt.flat only one that agrees with its
+/// neighbours'); a steeper one (a wall, a cliff, a trunk) takes the sign
 /// that agrees with its already oriented neighbours among the first `opt.k` columns of `nb`
 /// (rounds in which every such point votes with the state of the round before: the result
 /// does not depend on the thread count), and one that none reaches in opt.rounds rounds faces
