@@ -11,6 +11,8 @@ Three measurements, each against anchors taken in the same run (interleaved, med
    write) says where the rest goes.
 2. A 64x64 ``render(surfel_scene, camera)`` of a 2M-surfel scene against the same frame of a
    20k-surfel scene (target within 2x: nothing per frame may grow with the cloud).
+   The ``lidar`` part measures the same for real LiDAR tiles (``lidar/lone-star.laz``, 519k
+   points; ``lidar/autzen_trim.laz``, 110k points, RGB): no fit, normals oriented from above.
 3. Loader throughput (MB/s) per format: ``pointviz.load(estimate=False)`` against reading the
    same bytes (disk speed from the page cache) and against Open3D's reader (laspy without
    parallel decompression for LAZ).
@@ -50,6 +52,9 @@ SCAN_DISTANCE = 3.0
 SCAN_GRID = 400  # 400^2 rays, ~78% hit: ~125k points per scan, ~1M in all
 SCAN_NOISE = 0.001
 SCAN_MISREGISTRATION = 0.0005
+#: The ``lidar`` part's tiles (under the data folder), with their labels.
+LIDAR_FILES = (("lidar/lone-star.laz", "LiDAR tile (lone-star.laz, 519k points, LAZ)"),
+               ("lidar/autzen_trim.laz", "LiDAR tile (autzen_trim.laz, 110k points, LAZ, RGB)"))
 #: Surfel counts of the per-frame comparison.
 SMALL_SCENE, LARGE_SCENE = 20_000, 2_000_000
 FRAME_PIXELS = 64
@@ -447,7 +452,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=3, help="runs per measurement; medians kept")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: small generated inputs, repeat 1, no dragon")
-    p.add_argument("--only", choices=("start", "frame", "loaders"), action="append",
+    p.add_argument("--only", choices=("start", "lidar", "frame", "loaders"), action="append",
                    help="run only these parts (repeatable)")
     p.add_argument("--show", type=Path, metavar="JSON",
                    help="print the tables of an earlier run's JSON instead of measuring")
@@ -455,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.show is not None:
         show(json.loads(args.show.read_text()))
         return 0
-    parts = set(args.only or ("start", "frame", "loaders"))
+    parts = set(args.only or ("start", "lidar", "frame", "loaders"))
     repeat = 1 if args.quick else max(1, args.repeat)
     grid = 60 if args.quick else SCAN_GRID
     results: dict = {"quick": args.quick, "repeat": repeat}
@@ -477,6 +482,17 @@ def main(argv: list[str] | None = None) -> int:
             results["start_to_png"] = {}
             for label, conf in inputs:
                 med = start_to_png(conf, tmp, repeat, extra)
+                results["start_to_png"][label] = med
+                print_start_to_png(label, med)
+        if "lidar" in parts:
+            extra = ["--width", "64", "--height", "48"] if args.quick else []
+            results.setdefault("start_to_png", {})
+            for rel, label in LIDAR_FILES:
+                path = args.data / rel
+                if not path.is_file():
+                    print(f"\n{label}: {path} not found, skipped")
+                    continue
+                med = start_to_png(path, tmp, repeat, extra)
                 results["start_to_png"][label] = med
                 print_start_to_png(label, med)
         if "frame" in parts:

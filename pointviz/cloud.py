@@ -47,6 +47,7 @@ from .estimation import (  # noqa: F401 - re-exported: the estimation used to li
     estimate_radii,
     fit_surface,
     knn,
+    normals_and_radii,
     orient_normals,
 )
 from .settings import check_int
@@ -139,6 +140,11 @@ class PointCloud:
         An RGBA array's alpha is dropped. Stored as float32 in [0, 1].
     up : (3,) array_like, optional
         "Up" hint (normalised), e.g. +Z for airborne LiDAR, +Y for the Stanford models.
+    seen_from_above : bool
+        The sensor saw every surface from the ``up`` side, never from below (aerial and most
+        terrestrial LiDAR; the LAS/LAZ reader sets it): estimated normals face up, or their
+        oriented neighbours where they are steep (``estimate_normals(from_above=True)``),
+        instead of being oriented along a spanning tree. Needs ``up``.
     name : str, optional
         A label, e.g. the file name.
     viewpoints : (3,) or (n, 3) array_like, optional
@@ -175,6 +181,7 @@ class PointCloud:
         colors=None,
         *,
         up=None,
+        seen_from_above: bool = False,
         name=None,
         viewpoints=None,
         intensity=None,
@@ -200,6 +207,11 @@ class PointCloud:
         self._radii_given = radii is not None
         self._colors = None if colors is None else _validate_colors(colors, n)
         self.up = None if up is None else _unit_vector("up", up)
+        if not isinstance(seen_from_above, (bool, np.bool_)):
+            raise InputError(f"seen_from_above: expected True or False, got {seen_from_above!r}")
+        if seen_from_above and self.up is None:
+            raise InputError("seen_from_above: needs up (the side the surfaces were seen from)")
+        self.seen_from_above = bool(seen_from_above)
         if name is not None and not isinstance(name, str):
             raise InputError(f"name: expected a str, got {type(name).__name__}")
         self.name = name
@@ -244,13 +256,30 @@ class PointCloud:
     @property
     def normals(self) -> np.ndarray:
         """(n, 3) float32 unit normals; estimated (and cached) on first access if not given."""
+        if self._normals is None and self._radii is None and self._lidar_at_once():
+            # LiDAR without radii: both from the normals' neighbour search (the radii would
+            # build a tree and search again)
+            est, radii = normals_and_radii(self._points, up=self.up, from_above=True,
+                                           volume=True)
+            est.setflags(write=False)
+            radii.setflags(write=False)
+            self._normals, self._radii = est, radii
         if self._normals is None:
             est = estimate_normals(self._points, viewpoints=self.viewpoints,
                                    scan_index=self.scan_index, scan_grid=self.scan_grid,
-                                   up=self.up)
+                                   up=self.up,
+                                   from_above=self.seen_from_above and self.up is not None)
             est.setflags(write=False)
             self._normals = est
         return self._normals
+
+    def _lidar_at_once(self) -> bool:
+        """Whether normals and radii are estimated together (:func:`normals_and_radii`): a
+        cloud seen from above, without viewpoints or scans, with at least 3 distinct points."""
+        pts = self._points
+        return (getattr(self, "seen_from_above", False) and self.up is not None
+                and self.viewpoints is None and self.scan_index is None and len(pts) >= 3
+                and bool((pts != pts[0]).any()))
 
     @property
     def radii(self) -> np.ndarray:
@@ -262,7 +291,11 @@ class PointCloud:
             if len(pts) < 2 or not (pts != pts[0]).any():
                 est = estimate_radii(self._points)  # raises the specific error
             else:
-                est = coverage_radii(pts, self.normals)
+                normals = self.normals  # (LiDAR: estimates the radii with them)
+                if self._radii is not None:
+                    return self._radii
+                # LiDAR (seen from above) holds returns of vegetation, not only of surfaces
+                est = coverage_radii(pts, normals, volume=self.seen_from_above)
             est.setflags(write=False)
             self._radii = est
         return self._radii
@@ -426,6 +459,7 @@ class PointCloud:
             if arr is not None:
                 arr.setflags(write=False)
         out.up = extra.get("up", self.up)
+        out.seen_from_above = getattr(self, "seen_from_above", False)
         out.name = self.name
         out.viewpoints = extra.get("viewpoints")
         out.intensity = extra.get("intensity")

@@ -62,6 +62,15 @@ ORIENT_DISTANCE_WEIGHT = 0.1
 # scans vote > 0.8 for their outside.
 OUTWARD_UNDECIDED_MARGIN = 0.2
 
+# Orientation of a cloud seen from above (aerial and most terrestrial LiDAR, which never see a
+# surface from below; PointCloud.seen_from_above, set by the LAS reader): a normal within
+# acos(ORIENT_ABOVE_STEEP) = 72.5 degrees of the up faces up (beyond 45 degrees only when it
+# agrees with half of its neighbours': the core's OrientOptions::flat, agree); a steeper one
+# (walls, cliffs, trunks) takes the sign its oriented neighbours vote for (the core's orient_above, at most
+# OrientOptions::rounds rounds of propagation). Linear and on all cores instead of the spanning
+# tree's serial sort (benchmarks/README.md, "LiDAR's first minute").
+ORIENT_ABOVE_STEEP = 0.3
+
 # The spacing radius of a point comes from the distance to its RADIUS_K-th nearest neighbour (not
 # counting itself): the 8th reaches past the first ring, so one close neighbour does not collapse
 # the radius.
@@ -82,6 +91,25 @@ COVER_DIRECTIONS = 16
 COVER_MARGIN = 1.2
 COVER_CAP = 1.0
 COVER_GLOBAL_CAP = 4.0
+# Radii of points whose neighbourhood is not a surface (canopies, shrubs; the core's
+# CoverOptions::volume_*): f = the fraction of the COVER_K neighbours within VOLUME_BAND x their
+# in-plane distance of the point's tangent plane (~1 on sampled surfaces, noisy or curved, and
+# beside creases such as a roof's ridge; ~0.2-0.4 among scattered returns); from
+# VOLUME_SURFACE down to VOLUME_VOLUME the radius goes geometrically from the cell's to at most
+# VOLUME_FACTOR x the distance to the nearest neighbour: a volume of returns is shown as the
+# scatter it is, not as petals. A point taken for a surface whose neighbours mostly are not
+# (returns of a canopy that happen to lie in a plane, all to one side) is bounded as they are. A measure of thickness (RMS height over RMS in-plane distance)
+# was tried first: it also took the points beside a ridge for a volume and opened it (0.3-2.1 %
+# of vertical rays missed 30-60 degree roofs, vs 0.00-0.015 % with this one and factor 1;
+# factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute".
+VOLUME_BAND = 0.2
+VOLUME_SURFACE = 0.6
+VOLUME_VOLUME = 0.4
+VOLUME_FACTOR = 1.0
+# Sparse returns (water, dark roofs) keep disks of at most TYPICAL_CAP x the median radius of
+# the surface points: a few returns over a river do not blot it out with disks that cover what
+# they did not sample (0: off).
+TYPICAL_CAP = 3.0
 
 # Surface fit (the core's FitOptions, where the measurements behind these are). FIT_PASSES fits,
 # each on the previous one's output (planes, then a quadric), over at least FIT_MIN_SUPPORT
@@ -184,6 +212,36 @@ def _orient(k: int | None = None):
     return (ORIENT_K if k is None else k, ORIENT_DISTANCE_WEIGHT, OUTWARD_UNDECIDED_MARGIN)
 
 
+def _normal_points(points) -> np.ndarray:
+    """The points of a normal estimate: at least 3, not all at one position."""
+    pts = _points(points)
+    if len(pts) < 3:
+        raise InputError(f"normals: cannot be estimated from {len(pts)} point(s), need at "
+                         "least 3; pass normals")
+    _distinct(pts, "normals")
+    return pts
+
+
+def _above(from_above, up) -> float:
+    """The core's ``above``: ORIENT_ABOVE_STEEP to orient a cloud seen from above, else 0."""
+    if not isinstance(from_above, (bool, np.bool_)):
+        raise InputError(f"from_above: expected True or False, got {from_above!r}")
+    if not from_above:
+        return 0.0
+    if up is None:
+        raise InputError("from_above: needs up (the side the sensor saw the surfaces from)")
+    return ORIENT_ABOVE_STEEP
+
+
+def _volume(volume) -> tuple:
+    """The core's non-surface and sparse bounds of the radii (zeros: off)."""
+    if not isinstance(volume, (bool, np.bool_)):
+        raise InputError(f"volume: expected True or False, got {volume!r}")
+    if not volume:
+        return (VOLUME_BAND, VOLUME_SURFACE, VOLUME_VOLUME, 0.0, 0.0)
+    return (VOLUME_BAND, VOLUME_SURFACE, VOLUME_VOLUME, VOLUME_FACTOR, TYPICAL_CAP)
+
+
 def _count(name: str, value, lo: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
         raise InputError(f"{name}: expected an integer >= {lo}, got {value!r}")
@@ -238,6 +296,7 @@ def estimate_normals(
     scan_index=None,
     scan_grid=None,
     up=None,
+    from_above: bool = False,
     threads: int = 0,
     details: bool = False,
 ):
@@ -269,6 +328,10 @@ def estimate_normals(
         same neighbours as the per-scan search, depth jumps included).
     up : (3,) array_like, optional
         Tie-break for open, flat parts without viewpoints.
+    from_above : bool
+        The sensor saw every surface from the ``up`` side (aerial and most terrestrial LiDAR):
+        without viewpoints, normals are oriented by :func:`orient_normals` ``(from_above=True)``
+        instead of the spanning tree. Needs ``up``.
     threads : int
         Worker threads, 0 for all cores; results do not depend on it.
     details : bool
@@ -285,13 +348,8 @@ def estimate_normals(
     normals : (n, 3) float32
         Unit normals, never NaN.
     """
-    pts = _points(points)
+    pts = _normal_points(points)
     n = len(pts)
-    if n < 3:
-        raise InputError(
-            f"normals: cannot be estimated from {n} point(s), need at least 3; pass normals"
-        )
-    _distinct(pts, "normals")
     if k is None:
         k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
     else:
@@ -301,6 +359,7 @@ def estimate_normals(
     out = _core().estimate_normals(
         pts, vp, groups, _up(up), min(k_min, n), min(k_max, n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), _grid(scan_grid, groups, n),
+        above=_above(from_above, up),
     )
     normals = out.pop("normals")
     if details:
@@ -308,8 +367,43 @@ def estimate_normals(
     return normals
 
 
-def orient_normals(points, normals, *, viewpoints=None, up=None, k: int = ORIENT_K,
-                   threads: int = 0) -> np.ndarray:
+def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool = False,
+                      threads: int = 0):
+    """Normals and their coverage radii from one neighbour search, for a cloud without
+    viewpoints or scans: ``estimate_normals(points, up=up, from_above=from_above)`` and
+    ``coverage_radii(points, normals, volume=volume)``, but the radii take the first
+    :data:`COVER_K` columns of the normals' own neighbour table (sorted rows of the same tree)
+    instead of building a tree and searching again (lone-star.laz: 0.83 instead of 1.06 s).
+    The normals are the same bit for bit; the radii too but where the 10th and 11th neighbours
+    lie at the same distance (quantised LAS coordinates) and the two searches keep different
+    ones (on autzen_trim.laz 0.006 % of the radii, by at most 2e-6 of their size), and without
+    ``volume`` by a float's rounding here and there (1 ulp: that search visits its rows fused).
+
+    Returns
+    -------
+    normals : (n, 3) float32
+    radii : (n,) float32, positive
+    """
+    pts = _normal_points(points)
+    n = len(pts)
+    out = _core().estimate_normals(
+        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
+        NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
+        cover_k=min(COVER_K, n - 1), directions=COVER_DIRECTIONS, margin=COVER_MARGIN,
+        cap=COVER_CAP, global_cap=COVER_GLOBAL_CAP, volume=_volume(volume),
+    )
+    normals = out["normals"]
+    radii = out.get("radii")
+    if radii is None:
+        return normals, coverage_radii(pts, normals, volume=volume, threads=threads)
+    bad = ~(radii > 0)
+    if bad.any():  # stacks of duplicates, resolved as coverage_radii resolves them
+        radii[bad] = estimate_radii(pts, threads=threads)[bad]
+    return normals, radii
+
+
+def orient_normals(points, normals, *, viewpoints=None, up=None, from_above: bool = False,
+                   k: int = ORIENT_K, threads: int = 0) -> np.ndarray:
     """Flip normals so that they face their scanner, or agree with their neighbours.
 
     With ``viewpoints``, each normal is flipped to face its viewpoint. Without, signs propagate
@@ -326,6 +420,14 @@ def orient_normals(points, normals, *, viewpoints=None, up=None, k: int = ORIENT
         Unit (or non-zero) normals of any sign.
     viewpoints : (3,) or (n, 3) array_like, optional
     up : (3,) array_like, optional
+    from_above : bool
+        The sensor saw every surface from the ``up`` side, never from below (aerial and most
+        terrestrial LiDAR). Without viewpoints, a normal within acos(:data:`ORIENT_ABOVE_STEEP`)
+        of vertical then faces ``up``; a steeper one (a wall, a cliff, a trunk) takes the sign
+        its oriented neighbours among its ``k`` nearest vote for, in rounds (each on the state
+        of the round before: the same for any thread count); one that none reaches faces up by
+        the sign of its vertical part. Linear in n on all cores, where the spanning tree sorts
+        every edge on one thread. Needs ``up``.
     k : int
         Neighbours linked per point.
     threads : int
@@ -338,7 +440,8 @@ def orient_normals(points, normals, *, viewpoints=None, up=None, k: int = ORIENT
     pts = _points(points)
     nrm = _normals(normals, len(pts))
     out, _ = _core().orient_normals(pts, nrm, _viewpoints(viewpoints, len(pts)), _up(up),
-                                    _orient(_count("k", k, 1)), _threads(threads))
+                                    _orient(_count("k", k, 1)), _threads(threads),
+                                    above=_above(from_above, up))
     return out.astype(np.float64)
 
 
@@ -379,7 +482,7 @@ def estimate_radii(points, *, k: int = RADIUS_K, factor: float = RADIUS_FACTOR,
 
 
 def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_MARGIN,
-                   cap: float = COVER_CAP, threads: int = 0) -> np.ndarray:
+                   cap: float = COVER_CAP, volume: bool = False, threads: int = 0) -> np.ndarray:
     """Per-point radii just large enough to cover the surface: margin x the Voronoi-cell radius.
 
     For each point, its ``k`` nearest neighbours are projected on its tangent plane; along each
@@ -392,6 +495,15 @@ def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_M
     points : (n, 3) array_like
     normals : (n, 3) array_like, unit normals
     k, margin, cap : see :data:`COVER_K`, :data:`COVER_MARGIN`, :data:`COVER_CAP`
+    volume : bool
+        Model returns that are not of a surface (LiDAR's canopies and shrubs, sparse returns
+        over water; :class:`~pointviz.PointCloud` turns it on for clouds ``seen_from_above``):
+        a point whose neighbours mostly lie off its tangent plane gets at most
+        :data:`VOLUME_FACTOR` x its nearest neighbour's distance, and an isolated return (a cell
+        wide in most directions, beyond :data:`TYPICAL_CAP` x the surface points' median) at
+        most :data:`TYPICAL_CAP` x their median radius. Off by default: meshes and range scans
+        are surfaces throughout (on coarse meshes 1.5-11 % of the vertices would be taken for a
+        volume at curved details).
     threads : int
 
     Returns
@@ -405,7 +517,8 @@ def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_M
     _distinct(pts, "radii")
     nrm = _normals(normals, n)
     out = _core().coverage_radii(pts, nrm, min(_count("k", k, 1), n - 1), COVER_DIRECTIONS,
-                                 float(margin), float(cap), COVER_GLOBAL_CAP, _threads(threads))
+                                 float(margin), float(cap), COVER_GLOBAL_CAP, _threads(threads),
+                                 volume=_volume(volume))
     bad = ~(out > 0)
     if bad.any():  # stacks of duplicates: the spacing-based estimate knows how to handle them
         out[bad] = estimate_radii(pts, threads=threads)[bad]

@@ -484,6 +484,7 @@ def test_las_roundtrip(tmp_path, rng):
         np.testing.assert_allclose(cloud.colors[0], [1, 32768 / 65535, 0], atol=1e-6)
         np.testing.assert_array_equal(cloud.intensity, np.arange(n, dtype=np.float32))
         np.testing.assert_array_equal(cloud.up, [0, 0, 1])
+        assert cloud.seen_from_above  # aerial/terrestrial LiDAR: oriented from above
         assert np.mean(cloud.normals[:, 2] > 0.9) > 0.95  # flat ground, facing up
 
 

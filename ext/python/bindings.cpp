@@ -443,6 +443,8 @@ nb::dict normals_dict(const NormalsOutput &o, size_t n) {
     d["borrowed"] = o.est.borrowed;
     d["arbitrary"] = o.est.arbitrary;
     d["components"] = o.orient.components;
+    d["steep"] = o.orient.steep;
+    d["unreached"] = o.orient.unreached;
     d["grid_neighbours"] = o.grid.from_grid;
     d["view_grid_neighbours"] = o.grid.from_view;
     d["tree_neighbours"] = o.grid.from_tree;
@@ -458,16 +460,28 @@ NormalOptions normal_options(uint32_t k_min, uint32_t k_max, double confidence, 
     return o;
 }
 
+/// The non-surface and sparse bounds of the radii (CoverOptions): (band, surface fraction,
+/// volume fraction, factor, typical cap); a factor and cap of 0 turn them off.
+using VolumeArgs = std::array<double, 5>;
+
 CoverOptions cover_options(uint32_t directions, double margin, double cap, double global_cap,
-                           int threads) {
-    return CoverOptions{directions, margin, cap, global_cap, threads};  // (in field order)
+                           int threads, const VolumeArgs &volume = {0, 0, 0, 0, 0}) {
+    CoverOptions o{directions, margin, cap, global_cap, threads};  // (in field order)
+    o.volume_band = volume[0];
+    o.volume_surface = volume[1];
+    o.volume_volume = volume[2];
+    o.volume_factor = volume[3];
+    o.typical_cap = volume[4];
+    return o;
 }
 
 /// Orientation settings: neighbours linked, the edge-length weight, the undecided margin.
 using OrientArgs = std::tuple<uint32_t, double, double>;
 
-OrientOptions orient_options(const OrientArgs &args, std::optional<std::array<double, 3>> up) {
+OrientOptions orient_options(const OrientArgs &args, std::optional<std::array<double, 3>> up,
+                             double above_steep = 0) {
     OrientOptions o;
+    if (above_steep > 0) o.from_above = true, o.steep = above_steep;
     o.k = std::get<0>(args);
     o.distance_weight = std::get<1>(args);
     o.undecided_margin = std::get<2>(args);
@@ -777,42 +791,53 @@ NB_MODULE(_core, m) {
                                  std::optional<CArray<int32_t>> scan_index,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,
                                  uint32_t k_max, double confidence, OrientArgs orient, int threads,
-                                 std::optional<CArray<int32_t>> scan_grid) {
+                                 std::optional<CArray<int32_t>> scan_grid, double above,
+                                 uint32_t cover_k, uint32_t directions, double margin, double cap,
+                                 double global_cap, VolumeArgs volume) {
         PointsView v = points_view(points, viewpoints, scan_index);
         add_scan_grid(v, scan_grid);
         NormalOptions no = normal_options(k_min, k_max, confidence, threads);
-        OrientOptions oo = orient_options(orient, up);
-        NormalsOutput o = run_step([&](Progress &pr) { return normals_points(v, no, oo, pr); });
-        return normals_dict(o, v.n);
+        OrientOptions oo = orient_options(orient, up, above);
+        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads, volume);
+        NormalsOutput o = run_step([&](Progress &pr) {
+            return normals_points(v, no, oo, pr, cover_k ? &co : nullptr, cover_k);
+        });
+        nb::dict d = normals_dict(o, v.n);
+        if (!o.radii.empty()) d["radii"] = to_array(o.radii, {v.n});
+        return d;
     }, "points"_a, "viewpoints"_a.none(), "scan_index"_a.none(), "up"_a.none(), "k_min"_a,
-       "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0, "scan_grid"_a.none() = nb::none());
+       "k_max"_a, "confidence"_a, "orient"_a, "threads"_a = 0, "scan_grid"_a.none() = nb::none(),
+       "above"_a = 0.0, "cover_k"_a = 0, "directions"_a = CoverOptions{}.directions,
+       "margin"_a = CoverOptions{}.margin, "cap"_a = CoverOptions{}.cap,
+       "global_cap"_a = CoverOptions{}.global_cap, "volume"_a = VolumeArgs{0, 0, 0, 0, 0});
 
     m.def("orient_normals", [](CArray<double> points, CArray<float> normals,
                                std::optional<CArray<double>> viewpoints,
                                std::optional<std::array<double, 3>> up, OrientArgs orient,
-                               int threads) {
+                               int threads, double above) {
         PointsView v = points_view(points, viewpoints, std::nullopt);
         check_normals(normals, v.n);
         std::vector<float> out(normals.data(), normals.data() + 3 * v.n);
-        OrientOptions oo = orient_options(orient, up);
+        OrientOptions oo = orient_options(orient, up, above);
         OrientResult r = run_step([&](Progress &pr) {
             return orient_points(v, out.data(), oo, threads, pr);
         });
         return nb::make_tuple(to_array(out, {v.n, 3}), r.components);
-    }, "points"_a, "normals"_a, "viewpoints"_a.none(), "up"_a.none(), "orient"_a, "threads"_a = 0);
+    }, "points"_a, "normals"_a, "viewpoints"_a.none(), "up"_a.none(), "orient"_a, "threads"_a = 0,
+       "above"_a = 0.0);
 
     m.def("coverage_radii", [](CArray<double> points, CArray<float> normals, uint32_t k,
                                uint32_t directions, double margin, double cap, double global_cap,
-                               int threads) {
+                               int threads, VolumeArgs volume) {
         PointsView v = points_view(points, std::nullopt, std::nullopt);
         check_normals(normals, v.n);
-        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads);
+        CoverOptions co = cover_options(directions, margin, cap, global_cap, threads, volume);
         std::vector<float> r = run_step([&](Progress &pr) {
             return radii_points(v, normals.data(), k, co, pr);
         });
         return to_array(r, {v.n});
     }, "points"_a, "normals"_a, "k"_a, "directions"_a, "margin"_a, "cap"_a, "global_cap"_a,
-       "threads"_a = 0);
+       "threads"_a = 0, "volume"_a = VolumeArgs{0, 0, 0, 0, 0});
 
     m.def("fit_surface", [](CArray<double> points, std::optional<CArray<float>> normals,
                             std::optional<CArray<double>> viewpoints,

@@ -100,6 +100,7 @@ struct Spatial {
 };
 
 void normals_to_input(const Spatial &sp, NormalsOutput &o) {
+    if (!o.radii.empty()) o.radii = sp.to_input(o.radii);
     o.est.normals = sp.to_input(o.est.normals, 3);
     o.est.support = sp.to_input(o.est.support);
     o.est.spread = sp.to_input(o.est.spread);
@@ -110,7 +111,8 @@ void normals_to_input(const Spatial &sp, NormalsOutput &o) {
 /// normal comes from its own scan's neighbours (see scan_neighbours.h).
 NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
                                  const NeighbourTable *t, const NormalOptions &nopt,
-                                 const OrientOptions &oopt, Progress &progress) {
+                                 const OrientOptions &oopt, Progress &progress,
+                                 const CoverOptions *cover = nullptr, uint32_t cover_k = 0) {
     NormalsOutput out;
     NeighbourTable own;
     uint32_t k = std::min<uint64_t>(std::max(nopt.k_max - 1, oopt.k), in.n - 1);
@@ -142,17 +144,35 @@ NormalsOutput normals_from_table(const PointsView &in, const KnnTree &tree,
     if (in.viewpoints)
         out.toward_viewpoint_flips = orient_toward(in.points, out.est.normals.data(), in.n,
                                                    in.viewpoints, in.n_viewpoints, nopt.threads);
+    else if (oopt.from_above && oopt.has_up)
+        out.orient = orient_above(in.points, out.est.normals.data(), *t, oopt, nopt.threads,
+                                  &progress);
     else
         out.orient = orient_mst(in.points, out.est.normals.data(), *t, oopt, &progress);
+    cover_k = uint32_t(std::min<uint64_t>(cover_k, in.n - 1));
+    if (cover && cover_k > 0 && !in.viewpoints && t && t->k >= cover_k) {
+        // the table's rows are sorted: their first cover_k columns are the radii's search
+        NeighbourTable sub;
+        sub.n = t->n;
+        sub.k = cover_k;
+        sub.index.resize(sub.n * size_t(cover_k));
+        parallel_for(sub.n, size_t(1) << 15, nopt.threads, [&](size_t b, size_t e, int) {
+            for (size_t i = b; i < e; ++i)
+                std::copy_n(t->row(i), cover_k, sub.index.data() + i * size_t(cover_k));
+        });
+        out.radii = coverage_radii(in.points, out.est.normals.data(), sub, *cover, &progress);
+    }
     return out;
 }
 
 }  // namespace
 
 NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
-                             const OrientOptions &oopt, Progress &progress) {
+                             const OrientOptions &oopt, Progress &progress,
+                             const CoverOptions *cover, uint32_t cover_k) {
     Spatial sp(in, nopt.threads, progress);
-    NormalsOutput out = normals_from_table(sp.view, sp.tree, nullptr, nopt, oopt, progress);
+    NormalsOutput out = normals_from_table(sp.view, sp.tree, nullptr, nopt, oopt, progress,
+                                           cover, cover_k);
     normals_to_input(sp, out);
     return out;
 }
@@ -167,6 +187,8 @@ OrientResult orient_points(const PointsView &in, float *normals, const OrientOpt
     }
     KnnTree tree(in.points, in.n, threads, &progress);
     NeighbourTable t = knn_all(tree, in.points, oopt.k, threads, &progress);
+    if (oopt.from_above && oopt.has_up)
+        return orient_above(in.points, normals, t, oopt, threads, &progress);
     return orient_mst(in.points, normals, t, oopt, &progress);
 }
 

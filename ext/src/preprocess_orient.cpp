@@ -57,6 +57,108 @@ double dot3(const float *a, const float *b) {
 
 }  // namespace
 
+OrientResult orient_above(const double *points, float *normals, const NeighbourTable &nb,
+                          const OrientOptions &opt, int threads, Progress *progress) {
+    (void)points;
+    OrientResult res;
+    const size_t n = nb.n;
+    if (n == 0) return res;
+    const uint32_t k = std::min(opt.k, nb.k);
+    const float up[3] = {float(opt.up[0]), float(opt.up[1]), float(opt.up[2])};
+    auto up_dot = [&](size_t i) {
+        const float *v = normals + 3 * i;
+        return v[0] * up[0] + v[1] * up[1] + v[2] * up[2];
+    };
+    // state: 1 oriented, 0 not yet; the steep ones are listed (in index order)
+    std::vector<uint8_t> done(n, 0);
+    std::vector<uint8_t> flip(n, 0);
+    constexpr size_t kGrain = size_t(1) << 14;
+    // gathered per chunk of kGrain points, so that the list comes out in index order
+    const size_t chunks = (n + kGrain - 1) / kGrain;
+    std::vector<std::vector<uint32_t>> steep_chunk(chunks);
+    std::vector<size_t> flips_chunk(chunks, 0);
+    parallel_for(n, kGrain, threads, [&](size_t b, size_t e, int) {
+        std::vector<uint32_t> &st = steep_chunk[b / kGrain];
+        size_t c = 0;
+        for (size_t i = b; i < e; ++i) {
+            const float d = up_dot(i);
+            // the up decides a normal near vertical, or one tilted further that lies in its
+            // neighbours' plane: one that does not (a corner's, tilted up between two walls)
+            // waits for their votes instead
+            bool decided = std::fabs(d) >= opt.flat;
+            if (!decided && std::fabs(d) >= opt.steep) {
+                uint32_t agree = 0;
+                const uint32_t *row = nb.row(i);
+                for (uint32_t m = 0; m < k; ++m)
+                    agree += std::fabs(dot3(normals + 3 * i, normals + 3 * size_t(row[m]))) >=
+                             opt.agree;
+                decided = 2 * agree >= k;
+            }
+            if (decided) {
+                done[i] = 1;
+                if (d < 0) flip[i] = 1, ++c;
+            } else {
+                st.push_back(uint32_t(i));
+            }
+        }
+        flips_chunk[b / kGrain] = c;
+    }, progress ? &progress->cancel : nullptr);
+    check_cancel(progress);
+    std::vector<uint32_t> steep;
+    for (auto &v : steep_chunk) steep.insert(steep.end(), v.begin(), v.end());
+    for (size_t c : flips_chunk) res.flipped += c;
+    res.steep = steep.size();
+    // the sign of a normal as oriented so far
+    auto oriented = [&](size_t i, int a) {
+        return flip[i] ? -normals[3 * i + a] : normals[3 * i + a];
+    };
+    std::vector<int8_t> vote(steep.size(), 0);
+    for (uint32_t round = 0; round < opt.rounds && !steep.empty(); ++round) {
+        // every steep point votes with the state of the round before
+        parallel_for(steep.size(), 1024, threads, [&](size_t b, size_t e, int) {
+            for (size_t s = b; s < e; ++s) {
+                const uint32_t i = steep[s];
+                const uint32_t *row = nb.row(i);
+                double sum = 0;
+                for (uint32_t m = 0; m < k; ++m) {
+                    const uint32_t j = row[m];
+                    if (j == i || !done[j]) continue;
+                    // weighted by the agreement itself: a neighbour at right angles (the
+                    // roof or ground beside a wall) says nothing about the wall's sign
+                    const double c = normals[3 * size_t(i)] * oriented(j, 0) +
+                                     normals[3 * size_t(i) + 1] * oriented(j, 1) +
+                                     normals[3 * size_t(i) + 2] * oriented(j, 2);
+                    sum += c * std::fabs(c);
+                }
+                vote[s] = int8_t(sum > 0 ? 1 : sum < 0 ? -1 : 0);
+            }
+        }, progress ? &progress->cancel : nullptr);
+        check_cancel(progress);
+        size_t left = 0;
+        for (size_t s = 0; s < steep.size(); ++s) {
+            const uint32_t i = steep[s];
+            if (vote[s]) {
+                done[i] = 1;
+                if (vote[s] < 0) flip[i] = 1, ++res.flipped;
+            } else {
+                steep[left] = i, vote[left] = 0, ++left;
+            }
+        }
+        if (left == steep.size()) break;  // nothing reached: no later round would
+        steep.resize(left);
+    }
+    // unreached: face up by their own sign (ties keep theirs)
+    res.unreached = steep.size();
+    for (uint32_t i : steep)
+        if (up_dot(i) < 0) flip[i] = 1, ++res.flipped;
+    parallel_for(n, kGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i)
+            if (flip[i])
+                for (int a = 0; a < 3; ++a) normals[3 * i + a] = -normals[3 * i + a];
+    });
+    return res;
+}
+
 OrientResult orient_mst(const double *points, float *normals, const NeighbourTable &nb,
                         const OrientOptions &opt, Progress *progress) {
     OrientResult res;

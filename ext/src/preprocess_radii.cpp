@@ -52,9 +52,20 @@ struct Directions {
     }
 };
 
+/// A point's radius and whether its neighbourhood is a surface (see CoverOptions::volume_*).
+struct Cell {
+    float radius = 0.f;
+    bool surface = true;
+    /// margin x the cell's median extent over the sampled directions that have a bisector
+    /// (its radius is the largest): large for an isolated return, small for an elongated cell
+    /// (scan lines far apart, samples close along them).
+    float extent = 0.f;
+    float spacing = 0.f;  ///< the nearest neighbour's distance (with the volume bound on)
+};
+
 /// The radius of point i from its k neighbours `row` (in any order: the cell is a min over
 /// them, the cap a max, the fallback a min).
-float cell_radius(const double *points, const float *normals, size_t i, const uint32_t *row,
+Cell cell_radius(const double *points, const float *normals, size_t i, const uint32_t *row,
                   uint32_t k, const Directions &dir, const CoverOptions &opt) {
     alignas(32) float edge[kMaxDirections];
     const float *cs = dir.cs, *sn = dir.sn;
@@ -66,6 +77,7 @@ float cell_radius(const double *points, const float *normals, size_t i, const ui
     tangent_basis(nn, t1, t2);
     const float inf = std::numeric_limits<float>::infinity();
     double d1 = inf, dk = 0;
+    uint32_t in_plane = 0, counted = 0;  // neighbours within the tangent plane's band
     for (uint32_t a = 0; a < nd_lanes; ++a) edge[a] = inf;
     // along each direction the cell ends at the nearest perpendicular bisector
     for (uint32_t m = 0; m < k; ++m) {
@@ -77,6 +89,11 @@ float cell_radius(const double *points, const float *normals, size_t i, const ui
         double dist = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
         d1 = std::min(d1, dist);
         dk = std::max(dk, dist);
+        const double h = d[0] * nn[0] + d[1] * nn[1] + d[2] * nn[2];
+        if (dist > 0) {
+            ++counted;
+            in_plane += std::fabs(h) <= opt.volume_band * std::sqrt(double(r2));
+        }
         if (!(r2 > 0.f)) continue;
         float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
         // four directions at a time over whole lanes (the padding directions have
@@ -101,23 +118,86 @@ float cell_radius(const double *points, const float *normals, size_t i, const ui
 #endif
     }
     double cell = 0.0;
+    uint32_t bounded = 0;
     for (uint32_t a = 0; a < nd; ++a)
-        if (edge[a] < inf) cell = std::max(cell, double(edge[a]));
+        if (edge[a] < inf) cell = std::max(cell, double(edge[a])), edge[bounded++] = edge[a];
     double r = std::min(opt.margin * cell, opt.cap * dk);
     // isolated or degenerate (no bisector anywhere): from the neighbour distances
     if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);
+    Cell out;
+    out.spacing = d1 < inf ? float(d1) : 0.f;
+    if (opt.typical_cap > 0) {
+        double e = r;
+        if (bounded) {
+            std::nth_element(edge, edge + bounded / 2, edge + bounded);
+            e = std::min(opt.margin * double(edge[bounded / 2]), r);
+        }
+        out.extent = float(e);
+    }
+    if (opt.volume_factor > 0 && counted > 0 && r > 0) {
+        const double f = double(in_plane) / double(counted);
+        const double s = std::clamp((opt.volume_surface - f) /
+                                        std::max(opt.volume_surface - opt.volume_volume, 1e-12),
+                                    0.0, 1.0);
+        const double bound = std::min(r, opt.volume_factor * d1);
+        if (s > 0 && bound > 0) {
+            r = s >= 1 ? bound : std::exp((1 - s) * std::log(r) + s * std::log(bound));
+            out.surface = false;
+        }
+    }
     float rf = float(r);
     // rounding to float must not turn a tiny positive radius into 0
-    return r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
+    out.radius = r > 0 ? std::max(rf, std::numeric_limits<float>::min()) : 0.f;
+    return out;
 }
 
-/// Caps `out` at opt.global_cap x its 99th percentile (clouds of at least 100 points).
-void apply_global_cap(std::vector<float> &out, const CoverOptions &opt) {
+/// A point taken for a surface among neighbours most of which are not (a few returns of a
+/// canopy that happen to lie in a plane, all to one side: a petal reaching out to its k-th
+/// neighbour) is bounded as they are: at most volume_factor x its nearest neighbour's distance.
+/// Reads the first pass's flags only (the same for any thread count); marks those points.
+template <class RowOf>
+void bound_surface_among_volume(std::vector<float> &out, std::vector<Cell> &cells, uint32_t k,
+                                const CoverOptions &opt, RowOf row_of) {
+    const size_t n = out.size();
+    std::vector<uint8_t> demote(n, 0);
+    parallel_for(n, 4096, opt.threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            if (!cells[i].surface) continue;
+            const uint32_t *row = row_of(i);
+            uint32_t volume = 0;
+            for (uint32_t m = 0; m < k; ++m) volume += !cells[row[m]].surface;
+            if (2 * volume > k) demote[i] = 1;
+        }
+    });
+    for (size_t i = 0; i < n; ++i)
+        if (demote[i]) {
+            const float bound = float(opt.volume_factor) * cells[i].spacing;
+            if (bound > 0) out[i] = std::min(out[i], bound), cells[i].surface = false;
+        }
+}
+
+/// Caps `out` at opt.global_cap x its 99th percentile (clouds of at least 100 points). With
+/// opt.typical_cap, the `cells` of the points: a point whose cell's median extent exceeds
+/// typical_cap x the median of the surface points' is an isolated return, and its radius is
+/// capped at typical_cap x their median radius.
+void apply_global_cap(std::vector<float> &out, const CoverOptions &opt,
+                      const std::vector<Cell> &cells = {}) {
     constexpr size_t kMinForQuantile = 100;  // too few points for a meaningful percentile
     if (out.size() < kMinForQuantile) return;
     float cap = float(opt.global_cap * quantile(out, 0.99));
     if (cap > 0)
         for (float &r : out) r = std::min(r, cap);
+    if (opt.typical_cap > 0 && cells.size() == out.size()) {
+        std::vector<float> radius, extent;
+        for (size_t i = 0; i < out.size(); ++i)
+            if (cells[i].surface) radius.push_back(out[i]), extent.push_back(cells[i].extent);
+        if (radius.size() < kMinForQuantile) return;  // hardly any surface: nothing typical
+        const float r_cap = float(opt.typical_cap * quantile(radius, 0.5));
+        const float e_cap = float(opt.typical_cap * quantile(extent, 0.5));
+        if (!(r_cap > 0) || !(e_cap > 0)) return;
+        for (size_t i = 0; i < out.size(); ++i)
+            if (cells[i].extent > e_cap) out[i] = std::min(out[i], r_cap);
+    }
 }
 
 }  // namespace
@@ -132,13 +212,19 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     const Directions dir(opt.directions);
     if (progress) progress->total.fetch_add(n, std::memory_order_relaxed);
     constexpr size_t kGrain = 4096;
+    std::vector<Cell> cells(opt.typical_cap > 0 || opt.volume_factor > 0 ? n : 0);
     parallel_for(n, kGrain, opt.threads, [&](size_t b, size_t e, int) {
-        for (size_t i = b; i < e; ++i)
-            out[i] = cell_radius(points, normals, i, nb.row(i), k, dir, opt);
+        for (size_t i = b; i < e; ++i) {
+            const Cell c = cell_radius(points, normals, i, nb.row(i), k, dir, opt);
+            out[i] = c.radius;
+            if (!cells.empty()) cells[i] = c;
+        }
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
     check_cancel(progress);
-    apply_global_cap(out, opt);
+    if (opt.volume_factor > 0)
+        bound_surface_among_volume(out, cells, k, opt, [&](size_t i) { return nb.row(i); });
+    apply_global_cap(out, opt, cells);
     return out;
 }
 
@@ -149,12 +235,19 @@ std::vector<float> coverage_radii(const double *points, const float *normals,
     std::vector<float> out(n, 0.f);
     if (n < 2 || k == 0) return out;
     k = uint32_t(std::min<size_t>(k, n - 1));
+    if (opt.volume_factor > 0) {  // the second pass reads every point's row again
+        const NeighbourTable t = knn_all(tree, points, k, opt.threads, progress);
+        return coverage_radii(points, normals, t, opt, progress);
+    }
     const Directions dir(opt.directions);
+    std::vector<Cell> cells(opt.typical_cap > 0 ? n : 0);
     knn_each(tree, points, k, false, opt.threads, progress,
              [&](uint32_t i, const uint32_t *row) {
-                 out[i] = cell_radius(points, normals, i, row, k, dir, opt);
+                 const Cell c = cell_radius(points, normals, i, row, k, dir, opt);
+                 out[i] = c.radius;
+                 if (!cells.empty()) cells[i] = c;
              });
-    apply_global_cap(out, opt);
+    apply_global_cap(out, opt, cells);
     return out;
 }
 
@@ -198,7 +291,7 @@ RowRadii coverage_radii_from_rows(const double *points, const float *normals, si
                 std::nth_element(cand.begin(), cand.begin() + (k - 1), cand.begin() + c);
                 for (uint32_t r = 0; r < k; ++r) idx[r] = cand[r].second;
             }
-            out.radii[a] = cell_radius(points, normals, i, idx.data(), k, dir, opt);
+            out.radii[a] = cell_radius(points, normals, i, idx.data(), k, dir, opt).radius;
         }
         if (progress) progress->advance(e - b);
     }, progress ? &progress->cancel : nullptr);
@@ -223,7 +316,8 @@ RowRadii coverage_radii_from_rows(const double *points, const float *normals, si
                 uint32_t got = tree.query_near(sub.data() + 3 * size_t(a), stored[a], k, a,
                                                idx.data(), d2.data());
                 for (uint32_t c = 0; c < got; ++c) idx[c] = members[idx[c]];
-                out.radii[a] = cell_radius(points, normals, members[a], idx.data(), got, dir, opt);
+                out.radii[a] =
+                    cell_radius(points, normals, members[a], idx.data(), got, dir, opt).radius;
             }
         }, progress ? &progress->cancel : nullptr);
         check_cancel(progress);

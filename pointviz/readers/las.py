@@ -89,6 +89,6 @@ def read_las(path: Path, sample, rng) -> PointCloud:
         colors = (rgb / scale).astype(np.float32)
     intensity = np.asarray(las.intensity, dtype=np.float32) if "intensity" in dims else None
     return point_cloud(path, points, None, colors, sample=sample, rng=rng, intensity=intensity,
-                       up=(0.0, 0.0, 1.0), notes=notes)
+                       up=(0.0, 0.0, 1.0), seen_from_above=True, notes=notes)
 
 

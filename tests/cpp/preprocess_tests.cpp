@@ -995,6 +995,75 @@ void test_knn_kernels_agree_with_the_portable_ones() {
     CHECK(threw, "knn_kernels(Sse42): no such kernels, expected invalid_argument");
 }
 
+/// orient_above on ground around a box (roof, four walls): every normal of the ground and roof
+/// faces up, nearly every wall's faces out (an analytic oracle), the same for 1 and 3 threads;
+/// and the radii with the non-surface and sparse bounds on (a volume of scattered points above
+/// the ground): identical for 1 and 3 threads and through the table or the tree, the volume's
+/// at most the surface model's, and the ground's unchanged.
+void test_orientation_from_above_and_volume_radii() {
+    std::mt19937 g(5);
+    std::uniform_real_distribution<double> U(-1.0, 1.0);
+    std::vector<double> p, want;  // points and their outward normals
+    auto add = [&](double x, double y, double z, double nx, double ny, double nz) {
+        p.insert(p.end(), {x, y, z});
+        want.insert(want.end(), {nx, ny, nz});
+    };
+    for (int i = 0; i < 6000; ++i) {
+        double x = 15 * U(g), y = 15 * U(g);
+        if (std::fabs(x) > 5 || std::fabs(y) > 5) add(x, y, 0, 0, 0, 1);
+    }
+    for (int i = 0; i < 400; ++i) add(5 * U(g), 5 * U(g), 6, 0, 0, 1);
+    for (int side = 0; side < 4; ++side)
+        for (int i = 0; i < 240; ++i) {
+            double s = 5 * U(g), h = 3 + 3 * U(g), sg = side & 1 ? 1.0 : -1.0;
+            if (side < 2) add(5 * sg, s, h, sg, 0, 0);
+            else add(s, 5 * sg, h, 0, sg, 0);
+        }
+    const size_t n_surface = p.size() / 3;
+    for (int i = 0; i < 1500; ++i) add(9 + 2 * U(g), 9 + 2 * U(g), 10 + 2 * U(g), 0, 0, 0);
+    const size_t n = p.size() / 3;
+    KnnTree tree(p.data(), n, 2);
+    NeighbourTable t = knn_all(tree, p.data(), 31, 2);
+    NormalOptions no;
+    NormalResult est = estimate_normals(p.data(), t, no);
+    OrientOptions oo;
+    oo.has_up = oo.from_above = true;
+    std::vector<float> one = est.normals, three = est.normals;
+    OrientResult r1 = orient_above(p.data(), one.data(), t, oo, 1);
+    OrientResult r3 = orient_above(p.data(), three.data(), t, oo, 3);
+    CHECK(std::memcmp(one.data(), three.data(), 4 * one.size()) == 0 && r1.flipped == r3.flipped,
+          "orient_above differs between 1 and 3 threads");
+    CHECK(r1.steep > 0, "the walls are steep: %zu", r1.steep);
+    size_t flat_wrong = 0, walls = 0, walls_out = 0;
+    for (size_t i = 0; i < n_surface; ++i) {
+        double d = one[3 * i] * want[3 * i] + one[3 * i + 1] * want[3 * i + 1] +
+                   one[3 * i + 2] * want[3 * i + 2];
+        if (want[3 * i + 2] == 1) flat_wrong += d <= 0;
+        else ++walls, walls_out += d > 0;
+    }
+    CHECK(flat_wrong * 1000 <= n_surface, "%zu ground and roof normals face down", flat_wrong);
+    CHECK(walls_out * 100 >= walls * 95, "%zu of %zu wall normals face out", walls_out, walls);
+    CoverOptions plain, co;
+    co.volume_factor = 1.0;
+    co.typical_cap = 3.0;
+    NeighbourTable t10 = knn_all(tree, p.data(), 10, 2);
+    std::vector<float> base = coverage_radii(p.data(), one.data(), t10, plain);
+    co.threads = 1;
+    std::vector<float> a = coverage_radii(p.data(), one.data(), t10, co);
+    co.threads = 3;
+    std::vector<float> b = coverage_radii(p.data(), one.data(), tree, 10, co);
+    CHECK(std::memcmp(a.data(), b.data(), 4 * n) == 0,
+          "volume radii differ between 1 and 3 threads or the table and the tree");
+    size_t larger = 0, shrunk = 0;
+    for (size_t i = 0; i < n; ++i) {
+        larger += a[i] > base[i];
+        shrunk += i >= n_surface && a[i] < base[i];
+    }
+    CHECK(larger == 0, "%zu radii grew with the bounds on", larger);
+    CHECK(shrunk * 2 > n - n_surface, "only %zu of %zu volume points bounded", shrunk,
+          n - n_surface);
+}
+
 int main() {
     test_knn_matches_brute_force();
     test_knn_kernels_agree_with_the_portable_ones();
@@ -1011,6 +1080,7 @@ int main() {
     test_degenerate_neighbourhoods_give_finite_output();
     test_radii_match_the_scalar_formula();
     test_thinning_matches_the_serial_visit();
+    test_orientation_from_above_and_volume_radii();
     std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
                 pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;

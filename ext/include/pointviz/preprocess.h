@@ -43,9 +43,14 @@ struct NormalsOutput {
     OrientResult orient;
     size_t toward_viewpoint_flips = 0;
     GridNeighbourStats grid;  ///< how the neighbours within scans were found (with cells)
+    /// With `cover` (and neighbours across all points, i.e. no viewpoints): the coverage radii
+    /// of the oriented normals from the first cover_k columns of the normals' own table, equal
+    /// to radii_points' (the same tree, the same rows): the radii need no search of their own.
+    std::vector<float> radii;
 };
 NormalsOutput normals_points(const PointsView &in, const NormalOptions &nopt,
-                             const OrientOptions &oopt, Progress &progress);
+                             const OrientOptions &oopt, Progress &progress,
+                             const CoverOptions *cover = nullptr, uint32_t cover_k = 0);
 
 /// Orientation of given unoriented normals (in place) over `k` neighbours or toward viewpoints.
 OrientResult orient_points(const PointsView &in, float *normals, const OrientOptions &oopt,

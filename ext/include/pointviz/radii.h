@@ -27,6 +27,24 @@ struct CoverOptions {
     /// small stray cluster's cell would reach out to the distant surface.
     double global_cap = 4.0;
     int threads = 0;
+    /// Points whose neighbourhood is not a surface (canopies, shrubs: LiDAR's volumetric
+    /// returns) have no tangent plane whose cell a disk could cover: their radius is bounded
+    /// by their 3-D spacing instead. f = the fraction of the k neighbours within the point's
+    /// tangent plane's band (|height| <= volume_band x the distance along the plane): about 1
+    /// on a sampled surface, noisy or curved, and beside a crease (a roof's ridge: one face
+    /// holds most neighbours), ~0.2-0.4 among scattered returns. From f = volume_surface down to
+    /// volume_volume the radius goes geometrically from the cell's to
+    /// min(cell's, volume_factor x the nearest neighbour's distance); then a point taken for a
+    /// surface whose k neighbours are mostly not is bounded fully (a second pass over the rows:
+    /// the tree-searching overload stores its table then). volume_factor 0: off.
+    double volume_band = 0.2, volume_surface = 0.6, volume_volume = 0.4, volume_factor = 0;
+    /// Sparse returns (water, dark roofs) are not blown up to cover what they did not sample: a
+    /// point whose cell is wide in most directions (its median extent over the sampled
+    /// directions beyond typical_cap x the median of the surface points', those the bound above
+    /// leaves alone) gets at most typical_cap x their median radius. An elongated cell (scan
+    /// lines far apart) keeps its radius. Clouds of >= 100 points with >= 100 surface points;
+    /// 0: off.
+    double typical_cap = 0;
 };
 
 /// Radii for `points` with unit `normals`, from the neighbours in `nb` (all its columns).
