@@ -123,15 +123,16 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
 
 
 def _render_here(scene: Any, jobs: list[tuple[int, dict]], render_kwargs: dict, write: Any,
-                 cancel: Any, is_cancelled: Any) -> None:
+                 is_cancelled: Any) -> None:
     """Render ``jobs`` (index, camera dict) in this process, FRAMES_IN_FLIGHT at a time, and
     ``write(index, png)`` each on this thread in path order (False from it cancels).
 
     Each frame renders with the core's threads (every core by default) on a thread of a small
     pool; a second frame in flight fills the cores while the first one's tiles run out, its
-    denoiser runs or its PNG is encoded. A cancel (``cancel``, ``write``'s False, the
-    interrupt token, KeyboardInterrupt) stops the frames in flight at their next check and
-    waits for them: nothing is written after this returns or raises.
+    denoiser runs or its PNG is encoded. A cancel (``is_cancelled()``: render_path's
+    ``cancel`` or the interrupt token; ``write``'s False; KeyboardInterrupt) stops the frames
+    in flight at their next check and waits for them: nothing is written after this returns or
+    raises.
     """
     import contextvars
     from collections import deque
@@ -287,8 +288,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
             atomic_write_bytes(files[i], png, overwrite=True)
             return advance()
 
-        _render_here(scene, [(i, cameras[i]) for i in todo], render_kwargs, write, cancel,
-                     is_cancelled)
+        _render_here(scene, [(i, cameras[i]) for i in todo], render_kwargs, write, is_cancelled)
     elif todo:
         def on_frame(i: int, png: bytes, _info: dict) -> bool:
             atomic_write_bytes(files[i], png, overwrite=True)
