@@ -18,15 +18,38 @@ frames (units: 8-bit levels, mean over pixels and frames):
 LoD flicker is the LoD-on minus LoD-off difference of ``d1``/``hf``/``pop``, for each threshold of
 ``--lod-levels`` (1 px is the default threshold; 4 px exaggerates LoD to expose popping).
 
+Part 3 (``--cli``, the command as users run it): ``pointviz path INPUT orbit -o DIR`` in a fresh
+process per run, for each scheduler mode of ``--cli-modes`` (alternated: every mode once, then
+again, ``--cli-reps`` times), frame count of ``--cli-frames``, size of ``--cli-sizes`` and input of
+``--cli-data`` (``dragon``: the raw scans with the default fit; ``dragon-nofit``: the same scans
+as scanned; ``sphere1m``: a generated 1.2M-point sphere PLY with normals, ``--no-fit``). Per run:
+
+* ``wall``   : the command's wall time (start-up, loading, normals/radii, rendering, exit);
+* ``steady`` : frames/s once frames flow: the frames after the first fifth, from their files'
+  modification times (so the cluster's start-up and per-worker tree builds are not in it);
+* ``CPU s``  : user + system CPU time of the whole process tree (the processes it waited for);
+* ``rss``    : peak resident memory of the whole process tree (the command, a LocalCluster's
+  nanny and worker processes), the sum of RSS sampled every 50 ms (pages shared between
+  processes are counted in each, as ``ps`` does);
+* the 1-minute load average at the run's start and end, printed beside every figure.
+
+A mode is ``default`` (no ``--scheduler``), ``serial``, ``local``, ``auto``, or any of those
+prefixed ``main:`` to run main's build (``--main-bin``, e.g. ``/work/venvs/main/bin``) instead of this
+one's. The frames of every run of one cell are checked byte-identical to the first run's.
+
 Usage::
 
     python benchmarks/bench_paths.py                      # dragon scans if present, else demo
     python benchmarks/bench_paths.py --data demo --frames 12 --size 160x120   # quick
+    python benchmarks/bench_paths.py --cli --cli-modes main:default,default \
+        --cli-frames 25,100 --cli-sizes 320x240,640x480 --cli-data dragon,sphere1m
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -145,6 +168,139 @@ def flicker(scene, args, settings) -> None:
           "changes non-linearly from frame to frame (it also contains LoD-off's own shimmer).")
 
 
+def make_sphere_ply(path: Path, n: int) -> Path:
+    """A binary PLY of ``n`` points on a unit sphere (Fibonacci lattice, 0.2 % radial noise)
+    with outward normals: a large input whose loading is cheap, to time rendering at scale."""
+    if path.is_file():
+        return path
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    u = np.stack([r * np.cos(phi), z, r * np.sin(phi)], axis=1)
+    rng = np.random.default_rng(7)
+    pts = u * (1.0 + 0.002 * rng.standard_normal((n, 1)))
+    rows = np.hstack([pts, u]).astype("<f4")
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n"
+              + "".join(f"property float {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz"))
+              + "end_header\n").encode()
+    tmp = path.with_suffix(".part")
+    with open(tmp, "wb") as f:
+        f.write(header)
+        f.write(rows.tobytes())
+    tmp.rename(path)
+    return path
+
+
+def cli_input(name: str, work: Path) -> list[str]:
+    """The command's input arguments for a ``--cli-data`` name."""
+    conf = default_data_dir() / DRAGON_CONF
+    if name == "dragon":
+        return [str(conf)]
+    if name == "dragon-nofit":
+        return [str(conf), "--no-fit"]
+    if name.startswith("sphere"):
+        n = {"sphere1m": 1_200_000}.get(name) or int(float(name[len("sphere"):]))
+        return [str(make_sphere_ply(work / f"sphere_{n}.ply", n)), "--no-fit"]
+    raise SystemExit(f"--cli-data: unknown input {name!r}")
+
+
+def load1() -> float:
+    return os.getloadavg()[0]
+
+
+def run_cli(exe: str, inputs: list[str], out: Path, frames: int, size: tuple[int, int],
+            scheduler: str | None) -> dict:
+    """One ``pointviz path`` run: wall, steady frames/s, peak RSS of the process tree."""
+    import psutil
+
+    w, h = size
+    cmd = [exe, "path", *inputs, "orbit", "-o", str(out), "--width", str(w), "--height", str(h),
+           "--fps", "30", "--orbit", repr((frames - 1) / 30.0)]  # n frames: both ends
+    if scheduler is not None:
+        cmd += ["--scheduler", scheduler]
+    import resource
+
+    load0 = load1()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    peak = 0
+    root = psutil.Process(proc.pid)
+    while proc.poll() is None:
+        try:
+            procs = [root, *root.children(recursive=True)]
+        except psutil.Error:
+            procs = []
+        total = 0
+        for q in procs:
+            try:
+                total += q.memory_info().rss
+            except psutil.Error:
+                pass
+        peak = max(peak, total)
+        time.sleep(0.05)
+    stdout, stderr = proc.communicate()
+    wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{stderr[-2000:]}")
+    files = sorted(out.glob("frame_*.png"))
+    if len(files) != frames:
+        raise SystemExit(f"{' '.join(cmd)}: {len(files)} frames, expected {frames}")
+    times = sorted(f.stat().st_mtime for f in files)
+    k = len(times) // 5
+    span = times[-1] - times[k]
+    steady = (len(times) - 1 - k) / span if span > 0 else float("nan")
+    return {"wall": wall, "steady": steady, "rss": peak / 2**20, "cpu": cpu, "load0": load0,
+            "load1": load1(), "files": files, "summary": stdout.strip().splitlines()[0]}
+
+
+def cli_modes(args, work: Path) -> None:
+    """Part 3: the CLI per mode, alternated (see the module's notes)."""
+    here = Path(sys.executable).parent / "pointviz"
+    modes = args.cli_modes
+    print(f"\n## CLI: pointviz path INPUT orbit -o DIR; modes {modes} alternated, "
+          f"{args.cli_reps} rounds; CLI defaults otherwise (spp, shadows, reflections)")
+    print(f"{'data':14s} {'frames':>6s} {'size':>8s} {'mode':>14s} {'wall s':>7s} "
+          f"{'steady f/s':>10s} {'CPU s':>7s} {'peak RSS MiB':>12s} {'load':>9s}")
+    for data in args.cli_data:
+        inputs = cli_input(data, work)
+        for size in args.cli_sizes:
+            for frames in args.cli_frames:
+                rows: dict[str, list[dict]] = {m: [] for m in modes}
+                first = None
+                for rep in range(args.cli_reps):
+                    order = modes if rep % 2 == 0 else modes[::-1]
+                    for mode in order:
+                        build, _, sched = mode.rpartition(":")
+                        exe = (str(Path(args.main_bin) / "pointviz") if build == "main"
+                               else str(here))
+                        out = work / f"frames_{len(rows[mode])}_{mode.replace(':', '_')}"
+                        if out.exists():
+                            for f in out.iterdir():
+                                f.unlink()
+                        r = run_cli(exe, inputs, out, frames, size,
+                                    None if sched == "default" else sched)
+                        if first is None:
+                            first = [f.read_bytes() for f in r["files"]]
+                        same = sum(a == f.read_bytes() for a, f in zip(first, r["files"]))
+                        r["same"] = same
+                        rows[mode].append(r)
+                        print(f"{data:14s} {frames:6d} {size[0]:>4d}x{size[1]:<3d} {mode:>14s} "
+                              f"{r['wall']:7.2f} {r['steady']:10.2f} {r['cpu']:7.1f} "
+                              f"{r['rss']:12.0f} "
+                              f"{r['load0']:4.1f}-{r['load1']:.1f}"
+                              + ("" if same == frames else f"  FRAMES DIFFER ({same}/{frames})"),
+                              flush=True)
+                base = modes[0]
+                for mode in modes[1:]:
+                    ratio = [m["wall"] / b["wall"] for b, m in zip(rows[base], rows[mode])]
+                    print(f"{'':14s} {'':6s} {'':8s} wall {mode} / {base}: "
+                          + " ".join(f"{x:.2f}" for x in ratio), flush=True)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", choices=["dragon", "demo"], default="dragon")
@@ -160,10 +316,28 @@ def main(argv=None) -> int:
                    default=[1.0, 4.0], help="LoD thresholds (pixels) compared with LoD off")
     p.add_argument("--skip-throughput", action="store_true")
     p.add_argument("--skip-flicker", action="store_true")
+    p.add_argument("--cli", action="store_true", help="only part 3: the command per scheduler mode")
+    p.add_argument("--cli-modes", type=lambda t: t.split(","), default=["serial", "local"])
+    p.add_argument("--cli-frames", type=lambda t: [int(v) for v in t.split(",")],
+                   default=[25, 100, 300])
+    p.add_argument("--cli-sizes", type=lambda t: [parse_size(v) for v in t.split(",")],
+                   default=[(320, 240), (640, 480)])
+    p.add_argument("--cli-data", type=lambda t: t.split(","), default=["dragon", "sphere1m"])
+    p.add_argument("--cli-reps", type=int, default=2)
+    p.add_argument("--main-bin", default="/work/venvs/main/bin",
+                   help="bin folder of main's build, for modes prefixed main:")
+    p.add_argument("--work", type=Path, default=None,
+                   help="folder for the generated sphere and the frames (default: a temporary one)")
     args = p.parse_args(argv)
+    if args.cli:
+        if args.work is not None:
+            args.work.mkdir(parents=True, exist_ok=True)
+            cli_modes(args, args.work)
+        else:
+            with tempfile.TemporaryDirectory() as tmp:
+                cli_modes(args, Path(tmp))
+        return 0
     scene, label = load_scene(args.data)
-    import os
-
     print(f"# {label}; {os.cpu_count()} cores (shared machine: compare ratios, not absolutes)")
     settings = {"spp": args.spp, "reflections": 1, "shadows": True, "seed": 0,
                 "threads": args.threads}

@@ -36,11 +36,12 @@ COMMANDS = ("render", "view", "compare", "path", "info")
 #: the core, numpy's matrix products on their small arrays gain nothing from threads, and
 #: starting OpenBLAS's pool when numpy loads costs ~0.02-0.03 s of CPU, its idle workers
 #: spinning beside the core's threads more.
-SINGLE_THREADED_BLAS = ("render",)
+SINGLE_THREADED_BLAS = ("render", "path")
 #: Commands whose process keeps the memory it frees for its own later allocations
 #: (:func:`_reuse_freed_memory`): one pipeline whose stages each allocate and free large
 #: arrays (the fit's, the tree's, the frame's, the denoiser's), ending when the output is
-#: written.
+#: written. (Not ``path``: on the dragon's scans it raised a path render's peak from 228 to
+#: 297 MiB, the fit's freed arrays kept; a gain in time was not measured. 2026-11-25.)
 REUSE_FREED_MEMORY = ("render",)
 #: glibc's mallopt parameters, and the values set for REUSE_FREED_MEMORY: blocks under 1 GiB
 #: come from the heap, and freed memory stays in it (not trimmed).

@@ -1,6 +1,8 @@
 """Tests of pointviz.distributed: frames rendered on a 2-process Dask LocalCluster are
 byte-identical to the serial render (the oracle), the scene is built once per worker, and a
-worker killed mid-run does not stop the path from finishing.
+worker killed mid-run does not stop the path from finishing. The default scheduler ("auto")
+renders in this process: its frames are checked against a real LocalCluster's (the other
+backend as the oracle), in Python and on the command line, with progress, cancel and resume.
 
 The cluster tests start real worker processes (three clusters of two, about 6 s in all on a
 2-core machine, so they are not marked slow). Timeouts are generous on purpose (the machine is
@@ -15,8 +17,10 @@ import signal
 
 import pytest
 
+from pointviz.cli import main
 from pointviz.distributed import core_identity, render_frame_task
-from pointviz.path import CameraPath, render_path
+from pointviz.errors import CancelledError
+from pointviz.path import CameraPath, is_complete_png, render_path
 
 distributed = pytest.importorskip("distributed")
 
@@ -106,11 +110,61 @@ def test_cluster_by_address_resumes(scene, path, serial_frames, cluster, tmp_pat
     assert frames_of(tmp_path) == serial_frames
 
 
-def test_default_local_cluster(scene, path, serial_frames, tmp_path):
+def test_local_cluster(scene, path, serial_frames, tmp_path):
     summary = render_path(scene, path, tmp_path, scheduler="local", workers=2, progress=False,
                           **SETTINGS)
     assert summary["workers"] == 2
     assert frames_of(tmp_path) == serial_frames
+
+
+def test_default_mode_renders_here_identical_to_a_local_cluster(scene, path, tmp_path):
+    settings = {**SETTINGS, "threads": None}  # the default's threads: every core of this process
+    local = render_path(scene, path, tmp_path / "local", scheduler="local", workers=2,
+                        progress=False, **settings)
+    assert local["workers"] == 2 and sum(local["scene_builds"].values()) >= 1
+    oracle = frames_of(tmp_path / "local")
+    assert len(oracle) == path.n_frames
+
+    calls = []
+    summary = render_path(scene, path, tmp_path / "default",
+                          progress=lambda done, total: calls.append((done, total)), **settings)
+    assert summary["scheduler"] == "serial" and summary["workers"] == 0  # no cluster started
+    assert summary["scene_builds"] == {} and summary["startup_seconds"] == 0.0
+    assert frames_of(tmp_path / "default") == oracle
+    assert calls == [(i, path.n_frames) for i in range(path.n_frames + 1)]
+
+    # cancelled from its progress callback: the finished frames stay whole, a rerun resumes
+    out = tmp_path / "cancelled"
+    stop_after = 4
+    with pytest.raises(CancelledError):
+        render_path(scene, path, out, progress=lambda done, total: done < stop_after, **settings)
+    assert sorted(frames_of(out)) == sorted(oracle)[:stop_after]
+    assert all(is_complete_png(f, W, H) for f in out.glob("frame_*.png"))
+    assert not [f for f in out.iterdir() if f.name.startswith(".")]
+    resumed = render_path(scene, path, out, progress=False, **settings)
+    assert resumed["skipped"] == stop_after and resumed["rendered"] == path.n_frames - stop_after
+    assert frames_of(out) == oracle
+
+
+def test_cli_default_renders_here_identical_to_local_cluster(tmp_path, capsys):
+    args = ["--width", str(W), "--height", str(H), "--spp", "1", "--reflections", "0",
+            "--orbit", "0.5", "--fps", "8", "--no-denoise"]
+    assert main(["path", "demo", "orbit", "-o", str(tmp_path / "local"), *args,
+                 "--scheduler", "local", "--workers", "2"]) == 0
+    assert "on 2 workers at tcp://" in capsys.readouterr().out
+    assert main(["path", "demo", "orbit", "-o", str(tmp_path / "default"), *args,
+                 "--progress"]) == 0
+    captured = capsys.readouterr()
+    assert "in this process" in captured.out or "on this process" in captured.out
+    assert "path: 100%" in captured.err  # the progress lines (stderr is not a terminal here)
+    assert len(frames_of(tmp_path / "local")) == 5
+    assert frames_of(tmp_path / "default") == frames_of(tmp_path / "local")
+    # rerun in the default mode after losing two frames: only those are rendered again
+    for name in ("frame_00001.png", "frame_00003.png"):
+        (tmp_path / "default" / name).unlink()
+    assert main(["path", "demo", "orbit", "-o", str(tmp_path / "default"), *args]) == 0
+    assert "(2 rendered, 3 already there)" in capsys.readouterr().out
+    assert frames_of(tmp_path / "default") == frames_of(tmp_path / "local")
 
 
 def test_killed_worker_still_finishes(scene, serial_frames, tmp_path):

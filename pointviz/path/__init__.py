@@ -43,7 +43,7 @@ Frames are at ``t0 + k / fps`` for ``k = 0 .. n_frames - 1`` with
 from __future__ import annotations
 
 from ..frames import frame_png, is_complete_png
-from .batch import FRAME_GLOB, FRAME_NAME, MANIFEST_NAME, SERIAL, render_path
+from .batch import AUTO, FRAME_GLOB, FRAME_NAME, LOCAL, MANIFEST_NAME, SERIAL, render_path
 from .camera_path import DEFAULT_KEYFRAME_STEP, MIN_KEYFRAME_GAP, PATH_FORMAT, CameraPath
 from .curves import CATMULL_ROM_ALPHA
 from .keyframes import DEFAULT_EASING, DEFAULT_FPS, EASINGS, Keyframe
@@ -56,9 +56,9 @@ from .presets import (
 )
 
 __all__ = [
-    "CATMULL_ROM_ALPHA", "DEFAULT_EASING", "DEFAULT_FLY_SECONDS", "DEFAULT_FPS",
+    "AUTO", "CATMULL_ROM_ALPHA", "DEFAULT_EASING", "DEFAULT_FLY_SECONDS", "DEFAULT_FPS",
     "DEFAULT_KEYFRAME_STEP", "DEFAULT_ORBIT_ELEVATION_DEG", "DEFAULT_ORBIT_SECONDS", "EASINGS",
-    "FRAME_GLOB", "FRAME_NAME", "MANIFEST_NAME", "MIN_KEYFRAME_GAP", "PATH_FORMAT", "SERIAL",
+    "FRAME_GLOB", "FRAME_NAME", "LOCAL", "MANIFEST_NAME", "MIN_KEYFRAME_GAP", "PATH_FORMAT", "SERIAL",
     "CameraPath", "Keyframe", "fly_through_keyframes", "frame_png", "is_complete_png",
     "orbit_keyframes", "render_path",
 ]

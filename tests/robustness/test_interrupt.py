@@ -84,6 +84,8 @@ CASES = (
     + [(f"path-serial-{s}", s, [*PATH, "--scheduler", "serial"]) for s in
        ("imported", "loaded", "normals", "built", "first_tile", "first_frame", "writing",
         "encoding")]
+    + [(f"path-default-{s}", s, PATH) for s in  # no --scheduler: "auto", this process
+       ("loaded", "built", "first_frame", "writing")]
     + [(f"path-dask-{s}", s, [*PATH, "--scheduler", "local"]) for s in
        ("loaded", "cluster", "scattered", "first_frame", "writing")]
     + [(f"compare-{s}", s, COMPARE) for s in ("imported", "first_tile", "writing")]
