@@ -277,7 +277,7 @@ class PointCloud:
         """Whether normals and radii are estimated together (:func:`normals_and_radii`): a
         cloud seen from above, without viewpoints or scans, with at least 3 distinct points."""
         pts = self._points
-        return (getattr(self, "seen_from_above", False) and self.up is not None
+        return (self.seen_from_above and self.up is not None
                 and self.viewpoints is None and self.scan_index is None and len(pts) >= 3
                 and bool((pts != pts[0]).any()))
 
@@ -459,7 +459,7 @@ class PointCloud:
             if arr is not None:
                 arr.setflags(write=False)
         out.up = extra.get("up", self.up)
-        out.seen_from_above = getattr(self, "seen_from_above", False)
+        out.seen_from_above = self.seen_from_above
         out.name = self.name
         out.viewpoints = extra.get("viewpoints")
         out.intensity = extra.get("intensity")

@@ -32,6 +32,19 @@ def unit(value, name: str) -> np.ndarray:
     return arr / n
 
 
+#: The world axes by name, and each with its sign: what ``--up`` and the viewer's Up control accept.
+AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+_SIGNED_AXES = {f"{sign}{name}": tuple(0.0 if v == 0 else (v if sign == "+" else -v) for v in axis)
+                for sign in "+-" for name, axis in AXES.items()}
+
+
+def axis(text: str) -> tuple[float, float, float] | None:
+    """The unit vector an axis name stands for: ``x``, ``+y``, ``-Z`` (one optional sign, any
+    case, surrounding blanks ignored); None when ``text`` is not one."""
+    word = text.strip().lower()
+    return _SIGNED_AXES.get(word if word[:1] in ("+", "-") else "+" + word)
+
+
 def in_range(value, name: str, lo: float, hi: float) -> float:
     v = float(value)
     if not (np.isfinite(v) and lo <= v <= hi):

@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import InputError
 from ..interrupt import stage
 from ..settings import INTERPOLATIONS, RenderSettings
+from ..values import axis
 
 
 def add_input_options(p) -> None:
@@ -26,20 +27,15 @@ def add_input_options(p) -> None:
                         "for depth-camera frames, else +y)")
 
 
-#: ``--up`` by axis name.
-_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
-
-
 def parse_up(text: str | None):
     """``--up``: an axis name with an optional sign, or three numbers; None if not given."""
     if text is None:
         return None
-    word = text.strip().lower()
-    if word.lstrip("+-") in _AXES and len(word) - len(word.lstrip("+-")) <= 1:
-        sign = -1.0 if word.startswith("-") else 1.0
-        return tuple(sign * v for v in _AXES[word.lstrip("+-")])
+    named = axis(text)
+    if named is not None:
+        return named
     try:
-        values = [float(v) for v in word.split(",")]
+        values = [float(v) for v in text.strip().split(",")]
     except ValueError:
         values = []
     if len(values) != 3 or not np.all(np.isfinite(values)) or not np.linalg.norm(values) > 0:

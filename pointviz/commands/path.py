@@ -6,10 +6,8 @@ FRAMES_DIR/frame_00000.png ...; an interrupted run resumes when run again with t
 arguments.
 
 Frames render in this process by default (``--scheduler auto``): every core renders each frame
-(the core's threads, two frames in flight), the scene is loaded and its tree built once. On one
-machine that is the fastest way: on 2 cores it took 0.51-0.94x the wall time of a 2-worker
-LocalCluster (the default before), 0.65-0.90x its CPU time and 0.38-0.66x its memory, on
-25-100 frames of 320x240 and 640x480 and 300 of 320x240 (benchmarks/README.md).
+(the core's threads, two frames in flight), the scene is loaded and its tree built once: on one
+machine the fastest way, with the least memory (README.md, "Camera paths").
 ``--scheduler local`` renders on a local Dask cluster of ``--workers`` processes instead (process
 isolation: a crashed worker is restarted and its frame re-run), ``--scheduler tcp://HOST:PORT``
 on an existing Dask cluster (more machines). The frames are byte-identical whichever renders them.

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..settings import DEFAULTS, RenderSettings, check_int
+from ..values import AXES, axis
 
 #: Ways of colouring the preview.
 COLOR_MODES = ("rgb", "normal", "height", "intensity")
@@ -62,8 +63,7 @@ _VIRIDIS = np.array([[0.267, 0.005, 0.329], [0.255, 0.267, 0.530], [0.164, 0.471
 #: Percentiles that span the intensity colour scale (robust to a few saturated returns).
 INTENSITY_PERCENTILES = (1.0, 99.0)
 #: The Up control's choices: world axes by label.
-UP_AXES = {"+X": (1.0, 0.0, 0.0), "+Y": (0.0, 1.0, 0.0), "+Z": (0.0, 0.0, 1.0),
-           "-X": (-1.0, 0.0, 0.0), "-Y": (0.0, -1.0, 0.0), "-Z": (0.0, 0.0, -1.0)}
+UP_AXES = {f"{sign}{name.upper()}": axis(sign + name) for sign in "+-" for name in AXES}
 #: Vertical field of view of the camera that frames the scene when the viewer opens and when the
 #: up changes, degrees.
 VIEW_FOV_DEG = 40.0
@@ -217,12 +217,11 @@ def up_vector(value) -> tuple[float, float, float]:
         Naming ``up``, for anything else (a zero or non-finite vector).
     """
     if isinstance(value, str):
-        word = value.strip().upper()
-        word = word if word[:1] in "+-" else "+" + word
-        if word not in UP_AXES:
+        named = axis(value)
+        if named is None:
             raise InputError(f"up: expected one of {', '.join(UP_AXES)} or three numbers, "
                              f"got {value!r}")
-        return UP_AXES[word]
+        return named
     try:
         v = np.asarray(value, dtype=np.float64).reshape(3)
     except (TypeError, ValueError):
