@@ -665,8 +665,20 @@ class PointCloud:
             nrm[~ok] = nrm[used[near]]
             notes.append(
                 f"{int((~ok).sum())} of {len(v)} vertices are in no (non-degenerate) face: "
-                "they took the normal of the nearest vertex that is"
+                "they took the normal of the nearest vertex that is, and at most its radius"
             )
+            out = cls(v, nrm, colors=colors, notes=notes, **kw)
+            if not out.has_radii:
+                # The faces cover the surface; a loose vertex only adds a sample of it. Its own
+                # cell, among other loose vertices in a row off the faces' edge with a normal
+                # borrowed from across that edge, can reach the global cap (a disk 13x the
+                # median radius on drill_shaft_zip.ply): it keeps no more than its face
+                # vertex's cover. Cached as estimated, not given.
+                radii = np.array(out.radii)
+                radii[~ok] = np.minimum(radii[~ok], radii[used[near]])
+                radii.setflags(write=False)
+                out._radii = radii
+            return out
         return cls(v, nrm, colors=colors, notes=notes, **kw)
 
     @classmethod

@@ -433,6 +433,28 @@ def test_from_mesh_loose_vertex_borrows_nearest_normal():
     assert "1 of 7 vertices" in cloud.notes[0]
 
 
+def test_from_mesh_loose_vertices_cover_no_more_than_their_face_vertex():
+    # a fan of triangles in the z = 0 plane and, beyond its edge, a row of loose vertices out
+    # of the plane: their own tangent-plane cells (the normal borrowed from the fan) open
+    # towards the fan and would reach far; the faces already cover the surface
+    ring = np.linspace(0, np.pi, 9)
+    fan = np.c_[np.cos(ring), np.sin(ring), np.zeros(9)]
+    v = np.r_[[[0.0, 0.0, 0.0]], fan]
+    f = np.array([[0, i, i + 1] for i in range(1, 9)])
+    row = np.c_[np.linspace(-0.3, 0.3, 7), np.full(7, -0.05), np.full(7, 0.4)]
+    cloud = PointCloud.from_mesh(np.r_[v, row], f)
+    mesh_only = PointCloud.from_mesh(v, f)
+    loose = np.arange(len(v), len(v) + len(row))
+    # the oracle: each loose vertex's nearest face vertex, by brute force, and its radius
+    d = np.linalg.norm(row[:, None, :] - v[None, :, :], axis=2)
+    nearest = np.argmin(d, axis=1)
+    assert np.all(cloud.radii[loose] <= cloud.radii[nearest])
+    np.testing.assert_allclose(cloud.normals[loose], 0 * row + [0, 0, 1], atol=1e-6)
+    # the face vertices' own cover does not depend on the loose vertices' radii
+    assert not cloud.has_radii and np.all(cloud.radii > 0)
+    assert np.max(cloud.radii[loose]) <= np.max(mesh_only.radii) * 1.5
+
+
 def test_from_mesh_sample_is_uniform_on_the_surface(rng):
     # two triangles in the z=0 plane with areas 1/2 (x + y <= 1) and 1 (x + y >= 1)
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3, 0, 0], [0, 3, 0]], float)
