@@ -103,6 +103,28 @@ def test_organised_pcd_drops_nan_holes_with_a_note(shared_data):
 
 
 @pytest.mark.data
+@pytest.mark.filterwarnings("ignore:.*NaN/inf coordinates:UserWarning")
+def test_compressed_pcl_frames_read_by_the_core_equal_open3ds_reading(shared_data):
+    """PCL's binary_compressed frames (LZF, one block per field), expanded in the core: the same
+    points, colours and pixel grid as Open3D's reader gives, without importing Open3D."""
+    from pointviz.readers import pcd as pcd_reader
+
+    for name in ("office1.pcd", "car6.pcd"):
+        path = shared_data / "pcl_testdata" / name
+        header = pcd_reader._check_pcd(path)
+        assert header["mode"] == "binary_compressed"
+        ours = pcd_reader.read_pcd(path, None, None)
+        ref = pcd_reader.read_o3d_points(
+            path, None, None,
+            frame=lambda pts, normals, h=header, p=path: pcd_reader.depth_frame(p, h, pts, normals))
+        np.testing.assert_array_equal(ours.points, ref.points)
+        assert (ours.colors is None) == (ref.colors is None)
+        if ours.colors is not None:
+            np.testing.assert_allclose(ours.colors, ref.colors, atol=1e-7)
+        np.testing.assert_array_equal(ours.scan_grid, ref.scan_grid)
+
+
+@pytest.mark.data
 def test_mesh_surface_sampling(shared_data):
     o3d = _o3d()
     path = shared_data / "stanford_bunny/reconstruction/bun_zipper.ply"
@@ -717,9 +739,10 @@ def test_pcd_read_by_the_core_matches_open3d(tmp_path, rng):
     nrm = rng.normal(size=(n, 3))
     pcd.normals = o3d.utility.Vector3dVector(nrm / np.linalg.norm(nrm, axis=1, keepdims=True))
     pcd.colors = o3d.utility.Vector3dVector(rng.integers(0, 256, (n, 3)) / 255.0)
-    for ascii_ in (True, False):
-        path = tmp_path / f"c{int(ascii_)}.pcd"
-        assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii_)
+    for ascii_, compressed in ((True, False), (False, False), (False, True)):
+        path = tmp_path / f"c{int(ascii_)}{int(compressed)}.pcd"
+        assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii_, compressed=compressed)
+        assert (b"binary_compressed" in path.read_bytes()[:400]) == compressed
         ref = o3d.io.read_point_cloud(str(path))
         cloud = load(path, estimate=False)
         np.testing.assert_allclose(cloud.points, np.asarray(ref.points), rtol=1e-7)

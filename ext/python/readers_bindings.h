@@ -8,11 +8,14 @@
 #include <nanobind/stl/vector.h>
 #include <nanobind/stl/array.h>
 
+#include <cstdint>
+
 #include <memory>
 #include <utility>
 #include <vector>
 
 #include "pointviz/progress.h"
+#include "pointviz/readers/lzf.h"
 #include "pointviz/readers/table.h"
 
 namespace pointviz_bindings {
@@ -130,6 +133,20 @@ inline void bind_readers(nb::module_ &m) {
     "As read_tables, every spec's rows in one array, one spec's after the other's (each spec "
     "needs a row count, all the same wanted columns). Returns (values, dicts): values "
     "((total rows, len(wanted)) float64) and per spec the dict of read_tables without values.");
+    m.def("lzf_decompress", [](nb::bytes data, size_t size) {
+        std::unique_ptr<uint8_t[]> buf(new uint8_t[size > 0 ? size : 1]);
+        {
+            nb::gil_scoped_release release;
+            pointviz::lzf_decompress(reinterpret_cast<const uint8_t *>(data.c_str()), data.size(),
+                                     buf.get(), size);
+        }
+        uint8_t *raw = buf.release();
+        nb::capsule owner(raw, [](void *p) noexcept { delete[] static_cast<uint8_t *>(p); });
+        size_t shape[1] = {size};
+        return nb::ndarray<nb::numpy, uint8_t>(raw, 1, shape, owner);
+    }, "data"_a, "size"_a,
+    "Decompress an LZF block (PCD binary_compressed data) of exactly `size` bytes into a uint8 "
+    "array; MalformedData if the stream is damaged or expands to another size.");
 }
 
 }  // namespace pointviz_bindings

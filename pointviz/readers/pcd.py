@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _core
 from ..cloud import PointCloud
 from ..errors import FileFormatError
 from ..validate import check_points_fit
@@ -23,6 +24,9 @@ _PCD_REQUIRED = ("FIELDS", "SIZE", "TYPE", "WIDTH", "HEIGHT", "POINTS", "DATA")
 # Most values one PCD field may hold: descriptors reach a few hundred (VFH: 308); Open3D's reader
 # overflows (and crashes) on counts near 2^31.
 _PCD_MAX_COUNT = 1 << 16
+# LZF's largest expansion: a three-byte back reference copies at most 264 bytes (checked before
+# anything allocates for the expanded block).
+_LZF_MAX_RATIO = 88
 # An organised cloud is in its camera's coordinates (up -y) when this fraction of its points lies
 # in a frustum about +z of the VIEWPOINT origin (the four PCL frames here: all of them).
 CAMERA_FRAME_FRACTION = 0.95
@@ -128,6 +132,11 @@ def _check_pcd(path: Path) -> dict:
                 f"{path}: corrupt PCD: the compressed block expands to {int(uncompressed)} bytes, "
                 f"the header's {points} points need {points * row}"
             )
+        if int(uncompressed) > _LZF_MAX_RATIO * int(compressed) + _LZF_MAX_RATIO:
+            raise FileFormatError(
+                f"{path}: corrupt PCD: {int(compressed)} compressed bytes cannot expand to "
+                f"{int(uncompressed)}"
+            )
         if start + 8 + int(compressed) > size:
             raise FileFormatError(
                 f"{path}: truncated PCD: the compressed block needs {int(compressed)} bytes, "
@@ -189,10 +198,42 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     return extra
 
 
+def _decompressed_values(path: Path, h: dict, want: list[str]) -> np.ndarray:
+    """The ``want`` columns (field names, ``name#k`` for the k-th value of a field) of a
+    binary_compressed PCD file as float64, like the table reader's: its LZF block is expanded in
+    the core, then each field is one contiguous block of every point's values (PCL's layout)."""
+    n = h["points"]
+    with open(path, "rb") as fh:
+        fh.seek(h["offset"])
+        compressed, expanded = (int(v) for v in np.frombuffer(fh.read(8), dtype="<u4"))
+        data = fh.read(compressed)
+    if len(data) < compressed:  # (checked against the file's size already)
+        raise FileFormatError(f"{path}: truncated PCD: the compressed block ends early")
+    try:
+        raw = _core.lzf_decompress(data, expanded)
+    except table.MalformedData as exc:
+        raise FileFormatError(f"{path}: corrupt PCD compressed block ({exc})") from None
+    out = np.empty((n, len(want)), dtype=np.float64)
+    start = 0
+    for name, size, typ, count in zip(h["fields"], h["sizes"], h["types"], h["counts"]):
+        block = n * size * count
+        dtype = np.dtype(f"<{'f' if typ == 'F' else typ.lower()}{size}")
+        if name in ("rgb", "rgba") and size == 4 and count == 1:
+            dtype = np.dtype("<u4")  # a packed colour: the float's bits are 0xAARRGGBB
+        for k in range(count):
+            column = name if k == 0 else f"{name}#{k}"
+            if column in want:
+                field = np.frombuffer(raw, dtype=dtype, count=n * count, offset=start)
+                out[:, want.index(column)] = field[k::count]
+        start += block
+    return out
+
+
 def read_pcd(path: Path, sample, rng) -> PointCloud:
-    """A PCD file: ASCII and binary data in the core, binary_compressed through Open3D."""
+    """A PCD file: ASCII, binary and binary_compressed data in the core (Open3D's reader only for
+    compressed files with padding fields, ``_``)."""
     h = _check_pcd(path)
-    if h["mode"] == "binary_compressed":
+    if h["mode"] == "binary_compressed" and "_" in h["fields"]:
         return read_o3d_points(path, sample, rng,
                                frame=lambda pts, normals: depth_frame(path, h, pts, normals))
     columns, names = [], []
@@ -214,16 +255,19 @@ def read_pcd(path: Path, sample, rng) -> PointCloud:
     if packed is not None:
         want.append(packed)
     mode = "ascii" if h["mode"] == "ascii" else "binary_little_endian"
-    spec = table.spec(path, offset=h["offset"], encoding=mode, columns=columns, rows=h["points"],
-                      wanted=[names.index(n) for n in want])
-    try:
-        values = table.read([spec])[0].values
-    except table.TruncatedData as exc:
-        raise FileFormatError(f"{path}: truncated PCD: {exc}") from None
-    except table.MalformedData as exc:
-        raise FileFormatError(f"{path}: malformed ASCII PCD: {exc}") from None
-    except RuntimeError as exc:
-        raise FileFormatError(f"{path}: could not read the PCD file ({exc})") from None
+    if h["mode"] == "binary_compressed":
+        values = _decompressed_values(path, h, want)
+    else:
+        spec = table.spec(path, offset=h["offset"], encoding=mode, columns=columns,
+                          rows=h["points"], wanted=[names.index(n) for n in want])
+        try:
+            values = table.read([spec])[0].values
+        except table.TruncatedData as exc:
+            raise FileFormatError(f"{path}: truncated PCD: {exc}") from None
+        except table.MalformedData as exc:
+            raise FileFormatError(f"{path}: malformed ASCII PCD: {exc}") from None
+        except RuntimeError as exc:
+            raise FileFormatError(f"{path}: could not read the PCD file ({exc})") from None
     normals = values[:, 3:6] if "normal_x" in want else None
     colors = None
     if packed is not None:

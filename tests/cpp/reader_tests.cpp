@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "pointviz/readers/lzf.h"
 #include "pointviz/readers/numbers.h"
 #include "pointviz/readers/table.h"
 #include "check.h"
@@ -454,9 +455,64 @@ void test_fuzz() {
     CHECK(read_one(ascii_spec(temp_path("absent"), 3, 1), t) == Outcome::Other, "missing file");
 }
 
+/// Expands `stream` into `size` bytes: the bytes, or "!" + the error's kind when it throws.
+std::string lzf(const std::vector<uint8_t> &stream, size_t size) {
+    std::vector<uint8_t> out(size);
+    try {
+        lzf_decompress(stream.data(), stream.size(), out.data(), size);
+    } catch (const MalformedData &) {
+        return "!malformed";
+    }
+    return std::string(out.begin(), out.end());
+}
+
+void test_lzf() {
+    // literal runs: control byte c < 32, then c + 1 bytes
+    CHECK(lzf({2, 'a', 'b', 'c'}, 3) == "abc", "literal run");
+    CHECK(lzf({0, 'a', 1, 'b', 'c'}, 3) == "abc", "two literal runs");
+    CHECK(lzf({}, 0).empty(), "empty stream, empty data");
+    // a back reference: length - 2 in the top three bits, offset - 1 in 13 bits; overlapping
+    // copies repeat the pattern ("ab" then 6 bytes from 2 back)
+    CHECK(lzf({1, 'a', 'b', (6 - 2) << 5, 1}, 8) == "abababab", "overlapping back reference");
+    CHECK(lzf({3, 'w', 'x', 'y', 'z', (3 - 2) << 5, 3}, 7) == "wxyzwxy", "back reference");
+    // length 7 + the next byte: 2 + 7 + 20 = 29 copies of one byte
+    CHECK(lzf({0, 'q', 7 << 5, 20, 0}, 30) == std::string(30, 'q'), "long back reference");
+    // the largest offset, 8192 back, over a literal block of 8192 bytes
+    std::vector<uint8_t> big;
+    std::string want;
+    for (int run = 0; run < 256; ++run) {
+        big.push_back(31);
+        for (int k = 0; k < 32; ++k) {
+            big.push_back(uint8_t(run * 7 + k));
+            want.push_back(char(uint8_t(run * 7 + k)));
+        }
+    }
+    big.insert(big.end(), {uint8_t((1 << 5) | 31), 0xff});  // 3 bytes from 8192 back
+    want += want.substr(0, 3);
+    CHECK(lzf(big, want.size()) == want, "offset 8192");
+    // damaged streams end in MalformedData
+    CHECK(lzf({1, 'a', (6 - 2) << 5, 1}, 8) == "!malformed", "reference before the start");
+    CHECK(lzf({3, 'a', 'b'}, 4) == "!malformed", "literal run past the end of the stream");
+    CHECK(lzf({0, 'a', 7 << 5}, 10) == "!malformed", "long reference cut off");
+    CHECK(lzf({0, 'a', 1 << 5}, 10) == "!malformed", "reference cut off");
+    CHECK(lzf({2, 'a', 'b', 'c'}, 2) == "!malformed", "more bytes than declared");
+    CHECK(lzf({2, 'a', 'b', 'c'}, 4) == "!malformed", "fewer bytes than declared");
+    CHECK(lzf({0, 'a', (6 - 2) << 5, 0}, 4) == "!malformed", "reference past the declared size");
+    // random streams: expanded or rejected, never a read or write outside the buffers (ASan)
+    int ok = 0;
+    for (int i = 0; i < 3000; ++i) {
+        std::mt19937 gen{uint32_t(i)};
+        std::vector<uint8_t> stream(gen() % 64);
+        for (uint8_t &b : stream) b = uint8_t(gen());
+        if (lzf(stream, gen() % 200) != "!malformed") ++ok;
+    }
+    CHECK(ok < 3000, "random streams: %d of 3000 expanded", ok);
+}
+
 }  // namespace
 
 int main() {
+    test_lzf();
     test_parse_number();
     test_decode_scalar();
     test_ascii_round_trip();
