@@ -2,8 +2,8 @@
 
 A structured-light or stereo depth camera (Kinect-class) measures disparity in fractions of a
 pixel and converts it to depth, so a frame's depths take few distinct values, a step of about
-z^2 / (f b) x the disparity's resolution apart: 1-5 cm at 2-4 m on PCL's Kinect frames, 2-8x
-the pixel spacing there. A slanted wall is then a staircase of terraces, each several pixels
+z^2 / (f b) x the disparity's resolution apart: 1-5 cm at 2-4 m on PCL's Kinect frames,
+2.5-7x the pixel spacing there. A slanted wall is then a staircase of terraces, each several pixels
 wide, and a neighbourhood of 16-32 nearest points lies on one terrace: its plane is the
 terrace's, not the wall's (the walls of ``office1.pcd`` rendered as a scale pattern of
 differently shaded disks). Here each point's plane is fitted over a square patch of its frame's
