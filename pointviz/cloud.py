@@ -309,7 +309,7 @@ class PointCloud:
                 and getattr(self, "fit_report", None) is None)
 
     def fitted(self, *, thin: float | None = None, quadric: bool = True,
-               threads: int = 0) -> PointCloud:
+               steps: bool = True, threads: int = 0) -> PointCloud:
         """A copy moved onto a robust local fit of the surface, without redundant points.
 
         See :func:`pointviz.estimation.fit_surface`: each point moves onto a quadric fitted to
@@ -327,6 +327,11 @@ class PointCloud:
             :data:`pointviz.estimation.FIT_THIN`; 0 keeps every point).
         quadric : bool
             Fit quadrics (default) or planes.
+        steps : bool
+            A depth-camera frame (one scan on a pixel grid, without normals) whose depths come
+            in steps (:mod:`pointviz.depth_steps`: Kinect-class disparity quantisation) starts
+            the fit from planes fitted over pixel patches as wide as the steps (default); False:
+            from its raw points, as any scan.
         threads : int
             Worker threads, 0 for all cores; results do not depend on it.
 
@@ -339,11 +344,19 @@ class PointCloud:
         """
         from .estimation import FIT_THIN
 
+        points, normals = self._points, self._normals
+        step_note = None
+        if steps and not self._normals_given:
+            points, step_normals, step_note = self._depth_step_planes(points)
+            if step_normals is not None:
+                normals = step_normals
         fit = fit_surface(
-            self._points, self._normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
+            points, normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
             scan_grid=self.scan_grid,
             up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric,
             radii=not self._radii_given, threads=threads)
+        if points is not self._points:  # the shift from the points as read
+            fit.shift = np.linalg.norm(fit.points - self._points, axis=1).astype(np.float32)
         keep = np.flatnonzero(fit.keep)
         # every per-point attribute, estimated radii replaced; the points and normals the fit's
         # (this cloud's are not copied only to be replaced)
@@ -354,6 +367,8 @@ class PointCloud:
             radii.setflags(write=False)
             out._radii = radii
         summary = fit.summary()
+        if step_note:
+            out.notes.append(step_note)
         out.notes.append(summary)
         shift = float(fit.shift.mean())
         out.fit_report = {
@@ -367,6 +382,38 @@ class PointCloud:
             "summary": summary,
         }
         return out
+
+    def _depth_step_planes(self, points):
+        """(points, normals, note) moved onto planes over pixel patches sized to a depth-camera
+        frame's steps (:func:`pointviz.depth_steps.patch_planes`), or (points, None, None) when
+        this is not one frame on a pixel grid or its depths are not stepped."""
+        from .depth_steps import depth_steps, patch_planes
+
+        grid, vp = self.scan_grid, self.viewpoints
+        none = points, None, None
+        if grid is None or vp is None or len(points) < 64 or (grid < 0).any():
+            return none
+        vp = np.asarray(vp, dtype=np.float64)
+        if vp.ndim == 2:
+            if not (vp == vp[0]).all():
+                return none
+            vp = vp[0]
+        if self.scan_index is not None and (self.scan_index != self.scan_index[0]).any():
+            return none
+        if (int(grid[:, 0].max()) + 1) * (int(grid[:, 1].max()) + 1) > 16 * len(points):
+            return none  # not a frame's pixels (its moment images would be mostly empty)
+        step = depth_steps(points[:, 2])
+        if step is None:
+            return none
+        moved, normals, radius = patch_planes(points, grid, vp, step)
+        lo, hi = np.percentile(step, [5, 95])
+        r = radius[radius > 0]
+        width = (f"{2 * int(np.median(r)) + 1} px wide (median; 5-95 %: "
+                 f"{2 * int(np.percentile(r, 5)) + 1}-{2 * int(np.percentile(r, 95)) + 1})"
+                 if len(r) else "none")
+        note = (f"depths in steps of {lo:.3g}-{hi:.3g} (5-95 %): the fit starts from planes over "
+                f"pixel patches {width}")
+        return moved, normals, note
 
     @property
     def colors(self) -> np.ndarray | None:

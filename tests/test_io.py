@@ -387,6 +387,106 @@ def test_organised_pcd_is_a_depth_frame_fitted_as_a_raw_scan(tmp_path, rng, mode
     assert np.all(cloud.radii > 0)
 
 
+def kinect_frame(w=320, h=240, f=290.0, baseline=0.075, subpixel=8, noise=0.0, quantise=True,
+                 rng=None):
+    """A depth camera's frame of an analytic scene: a wall through (0, 0, 3) turned 40 degrees
+    about the vertical, a sphere of radius 0.35 in front. With ``quantise``, as a Kinect-class
+    camera measures it: the disparity f b / z (plus Gaussian ``noise`` in pixels) rounded to
+    1/``subpixel`` pixel, then converted back to depth (steps of z^2 / (subpixel f b): 4-5
+    pixels' spacing at 3 m, as on PCL's Kinect frames). Returns the (h * w, 3) points (NaN past
+    6 m) and the scene: (wall normal, wall point, sphere centre, radius)."""
+    rows, cols = np.mgrid[0:h, 0:w]
+    d = np.column_stack([(cols.ravel() - w / 2 + 0.5) / f, (rows.ravel() - h / 2 + 0.5) / f,
+                         np.ones(w * h)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    wall_n = np.array([np.sin(np.radians(40)), 0.1, -np.cos(np.radians(40))])
+    wall_n /= np.linalg.norm(wall_n)
+    wall_p = np.array([0.0, 0.0, 3.0])
+    centre, radius = np.array([-0.3, 0.1, 2.2]), 0.35
+    b = -(d @ centre)
+    disc = b * b - (centre @ centre - radius * radius)
+    with np.errstate(invalid="ignore"):
+        t_sphere = -b - np.sqrt(disc)
+    t = np.where((disc > 0) & (t_sphere > 0), t_sphere, (wall_p @ wall_n) / (d @ wall_n))
+    pts = t[:, None] * d
+    if quantise:
+        z = pts[:, 2]
+        disparity = f * baseline / z + (noise * rng.standard_normal(len(z)) if noise else 0.0)
+        pts *= (f * baseline / (np.round(disparity * subpixel) / subpixel) / z)[:, None]
+    pts[t > 6] = np.nan
+    return pts, (wall_n, wall_p, centre, radius)
+
+
+def scene_errors(cloud, scene):
+    """Mean angle (degrees) of the normals against the scene's surface nearest each point, and
+    the points' mean distance to it."""
+    wall_n, wall_p, centre, radius = scene
+    p = cloud.points.astype(np.float64)
+    to_wall = np.abs((p - wall_p) @ wall_n)
+    off = p - centre
+    to_sphere = np.abs(np.linalg.norm(off, axis=1) - radius)
+    exact = np.where((to_sphere < to_wall)[:, None],
+                     off / np.linalg.norm(off, axis=1, keepdims=True), -wall_n)
+    cos = np.abs(np.einsum("ij,ij->i", cloud.normals, exact))
+    return float(np.degrees(np.arccos(np.clip(cos, 0, 1))).mean()), float(
+        np.minimum(to_wall, to_sphere).mean())
+
+
+@pytest.mark.parametrize("noise", [0.05, 0.0])
+def test_depth_steps_the_fit_follows_the_surface_through_kinect_quantisation(tmp_path, noise):
+    # oracle: the analytic scene. Its Kinect-like frame (disparity in 1/8 pixel, with and
+    # without disparity noise) is a staircase whose steps are wider than 16-32 points: fitted
+    # from those (steps=False, as before) the normals followed the terraces
+    rng = np.random.default_rng(7)
+    pts, scene = kinect_frame(noise=noise, rng=rng)
+    path = tmp_path / "kinect.pcd"
+    write_pcd(path, pts, 320, 240)
+    with pytest.warns(UserWarning, match="NaN/inf"):
+        raw = load(path, estimate=False, fit=False)
+    assert len(np.unique(raw.points[:, 2])) < 100  # the frame's depths come in steps
+    plain = raw.fitted(steps=False)
+    before = scene_errors(plain, scene)
+    fitted = raw.fitted()
+    after = scene_errors(fitted, scene)
+    assert before[0] > 20.0  # the terraces' normals
+    assert after[0] < 3.0 and after[0] < 0.15 * before[0], (before, after)
+    assert after[1] < 0.3 * before[1], (before, after)
+    assert any("depths in steps of" in n for n in fitted.notes)
+    # facing away from the camera: no more than before (a few of the sphere's rim points)
+    away = np.mean(np.einsum("ij,ij->i", fitted.normals, fitted.points) >= 0)
+    assert away <= np.mean(np.einsum("ij,ij->i", plain.normals, plain.points) >= 0) + 1e-4
+    assert away < 0.002
+    # the same through load(), the default
+    with pytest.warns(UserWarning, match="NaN/inf"):
+        loaded = load(path)
+    np.testing.assert_allclose(loaded.points, fitted.points)
+    # invalid pixels written as zeros (the camera's position), not NaN: in no patch
+    zeros = np.where(np.isfinite(pts), pts, 0.0)
+    write_pcd(path, zeros, 320, 240)
+    cloud = load(path)
+    seen = np.linalg.norm(cloud.points, axis=1) > 0
+    assert seen.sum() >= 0.99 * len(fitted)
+    assert scene_errors(cloud.subset(seen), scene)[0] < 3.0
+
+
+def test_depth_steps_leave_frames_without_steps_alone(tmp_path, rng):
+    # noise-free depths (floats): no steps, the fit as before, to the bit
+    pts, scene = kinect_frame(quantise=False)
+    path = tmp_path / "exact.pcd"
+    write_pcd(path, pts, 320, 240)
+    with pytest.warns(UserWarning, match="NaN/inf"):
+        raw = load(path, estimate=False, fit=False)
+    plain, stepped = raw.fitted(steps=False), raw.fitted()
+    np.testing.assert_array_equal(plain.points, stepped.points)
+    np.testing.assert_array_equal(plain.normals, stepped.normals)
+    assert scene_errors(stepped, scene)[0] < 0.2
+    # nor noisy floats (range noise without quantisation)
+    from pointviz.depth_steps import depth_steps
+
+    assert depth_steps(pts[np.isfinite(pts[:, 2]), 2] + rng.normal(0, 1e-3, np.isfinite(
+        pts[:, 2]).sum())) is None
+
+
 def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, rng):
     # the VIEWPOINT's origin is the camera: a frame taken from (1, 2, 3)
     origin = np.array([1.0, 2.0, 3.0])
