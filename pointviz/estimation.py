@@ -101,7 +101,11 @@ COVER_GLOBAL_CAP = 4.0
 # (returns of a canopy that happen to lie in a plane, all to one side) is bounded as they are. A measure of thickness (RMS height over RMS in-plane distance)
 # was tried first: it also took the points beside a ridge for a volume and opened it (0.3-2.1 %
 # of vertical rays missed 30-60 degree roofs, vs 0.00-0.015 % with this one and factor 1;
-# factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute".
+# factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute". With these bounds
+# on, a point whose neighbours all lie to one side (some direction meets no bisector) leaves out
+# of its cell the directions whose bisector lies beyond the neighbour that makes it (the core's
+# CoverOptions::open_cos): the grazing far ends of the vegetation's "petals" (its radius p99
+# 0.221 -> 0.191 m; uniform random planes stay hole-free): "LiDAR's first minute, part two".
 VOLUME_BAND = 0.2
 VOLUME_SURFACE = 0.6
 VOLUME_VOLUME = 0.4
@@ -501,7 +505,9 @@ def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_M
         a point whose neighbours mostly lie off its tangent plane gets at most
         :data:`VOLUME_FACTOR` x its nearest neighbour's distance, and an isolated return (a cell
         wide in most directions, beyond :data:`TYPICAL_CAP` x the surface points' median) at
-        most :data:`TYPICAL_CAP` x their median radius. Off by default: meshes and range scans
+        most :data:`TYPICAL_CAP` x their median radius; a point whose neighbours all lie to one
+        side leaves its grazing directions (a bisector beyond its own neighbour) out of its
+        cell. Off by default: meshes and range scans
         are surfaces throughout (on coarse meshes 1.5-11 % of the vertices would be taken for a
         volume at curved details).
     threads : int
