@@ -44,6 +44,14 @@ NORMAL_K_MAX = 32
 # 2.33 / 5.31 degrees at 3; fixed k = 8: 1.77 / 13.8 / 1.35 / 29.3; k = 32: 1.40 / 2.64 / 3.63 /
 # 5.01. 2 stops too early in noise (3.70 on the noisy torus), 4 hardly adapts on edges.
 NORMAL_CONFIDENCE = 3.0
+# The largest size for a cloud seen from above (``from_above``: aerial and terrestrial LiDAR
+# tiles): the 31-neighbour search was a third of lone-star.laz's start to PNG, and half of the
+# tile is canopy, whose normals are no surface's. 19 neighbours instead of 31: normals_and_radii
+# on lone-star 0.82 -> 0.64 s (two threads), its render within the sampling noise of main's
+# (mean |difference| 2.0 of 255 against 2.2 between two seeds of main); on a sampled height
+# field with 0.2 spacings of height noise the mean error 1.97 -> 2.96 degrees (16: 3.73, 24:
+# 2.49); benchmarks/README.md, "LiDAR's first minute, part two".
+NORMAL_K_MAX_ABOVE = 20
 # The fixed neighbourhood size of earlier versions (k=...) and of callers that ask for one.
 NORMAL_K = 16
 
@@ -226,6 +234,15 @@ def _normal_points(points) -> np.ndarray:
     return pts
 
 
+def _k_max(from_above, viewpoints=None, scan_index=None) -> int:
+    """The largest neighbourhood of the adaptive normals: NORMAL_K_MAX_ABOVE for a cloud seen
+    from above (oriented from above: neither viewpoints nor scans), else NORMAL_K_MAX."""
+    if (isinstance(from_above, (bool, np.bool_)) and from_above and viewpoints is None
+            and scan_index is None):
+        return NORMAL_K_MAX_ABOVE
+    return NORMAL_K_MAX
+
+
 def _above(from_above, up) -> float:
     """The core's ``above``: ORIENT_ABOVE_STEEP to orient a cloud seen from above, else 0."""
     if not isinstance(from_above, (bool, np.bool_)):
@@ -312,7 +329,8 @@ def estimate_normals(
         Positions, n >= 3, not all on one line.
     k : int, optional
         A fixed neighbourhood size (the point included). By default the size is chosen per point
-        between :data:`NORMAL_K_MIN` and :data:`NORMAL_K_MAX` from the local noise and sampling.
+        between :data:`NORMAL_K_MIN` and :data:`NORMAL_K_MAX` (:data:`NORMAL_K_MAX_ABOVE` with
+        ``from_above`` and neither viewpoints nor scans) from the local noise and sampling.
     viewpoints : (3,) or (n, 3) array_like, optional
         Scanner position(s): each normal is flipped to face its viewpoint. Otherwise normals are
         oriented along a minimum spanning tree (see :func:`orient_normals`).
@@ -355,7 +373,7 @@ def estimate_normals(
     pts = _normal_points(points)
     n = len(pts)
     if k is None:
-        k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
+        k_min, k_max = NORMAL_K_MIN, _k_max(from_above, viewpoints, scan_index)
     else:
         k_min = k_max = max(3, _count("k", k, 3))
     vp = _viewpoints(viewpoints, n)
@@ -391,7 +409,7 @@ def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool
     pts = _normal_points(points)
     n = len(pts)
     out = _core().estimate_normals(
-        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
+        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(_k_max(from_above), n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
         cover_k=min(COVER_K, n - 1), directions=COVER_DIRECTIONS, margin=COVER_MARGIN,
         cap=COVER_CAP, global_cap=COVER_GLOBAL_CAP, volume=_volume(volume),
