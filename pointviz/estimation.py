@@ -44,6 +44,14 @@ NORMAL_K_MAX = 32
 # 2.33 / 5.31 degrees at 3; fixed k = 8: 1.77 / 13.8 / 1.35 / 29.3; k = 32: 1.40 / 2.64 / 3.63 /
 # 5.01. 2 stops too early in noise (3.70 on the noisy torus), 4 hardly adapts on edges.
 NORMAL_CONFIDENCE = 3.0
+# The largest size for a cloud seen from above (``from_above``: aerial and terrestrial LiDAR
+# tiles): the 31-neighbour search was a third of lone-star.laz's start to PNG, and half of the
+# tile is canopy, whose normals are no surface's. 19 neighbours instead of 31: normals_and_radii
+# on lone-star 0.82 -> 0.64 s (two threads), its render within the sampling noise of main's
+# (mean |difference| 2.0 of 255 against 2.2 between two seeds of main); on a sampled height
+# field with 0.2 spacings of height noise the mean error 1.97 -> 2.96 degrees (16: 3.73, 24:
+# 2.49); benchmarks/README.md, "LiDAR's first minute, part two".
+NORMAL_K_MAX_ABOVE = 20
 # The fixed neighbourhood size of earlier versions (k=...) and of callers that ask for one.
 NORMAL_K = 16
 
@@ -101,7 +109,11 @@ COVER_GLOBAL_CAP = 4.0
 # (returns of a canopy that happen to lie in a plane, all to one side) is bounded as they are. A measure of thickness (RMS height over RMS in-plane distance)
 # was tried first: it also took the points beside a ridge for a volume and opened it (0.3-2.1 %
 # of vertical rays missed 30-60 degree roofs, vs 0.00-0.015 % with this one and factor 1;
-# factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute".
+# factor 0.5 left 0.17-0.45 %): benchmarks/README.md, "LiDAR's first minute". With these bounds
+# on, a point whose neighbours all lie to one side (some direction meets no bisector) leaves out
+# of its cell the directions whose bisector lies beyond the neighbour that makes it (the core's
+# CoverOptions::open_cos): the grazing far ends of the vegetation's "petals" (its radius p99
+# 0.221 -> 0.191 m; uniform random planes stay hole-free): "LiDAR's first minute, part two".
 VOLUME_BAND = 0.2
 VOLUME_SURFACE = 0.6
 VOLUME_VOLUME = 0.4
@@ -222,6 +234,15 @@ def _normal_points(points) -> np.ndarray:
     return pts
 
 
+def _k_max(from_above, viewpoints=None, scan_index=None) -> int:
+    """The largest neighbourhood of the adaptive normals: NORMAL_K_MAX_ABOVE for a cloud seen
+    from above (oriented from above: neither viewpoints nor scans), else NORMAL_K_MAX."""
+    if (isinstance(from_above, (bool, np.bool_)) and from_above and viewpoints is None
+            and scan_index is None):
+        return NORMAL_K_MAX_ABOVE
+    return NORMAL_K_MAX
+
+
 def _above(from_above, up) -> float:
     """The core's ``above``: ORIENT_ABOVE_STEEP to orient a cloud seen from above, else 0."""
     if not isinstance(from_above, (bool, np.bool_)):
@@ -308,7 +329,8 @@ def estimate_normals(
         Positions, n >= 3, not all on one line.
     k : int, optional
         A fixed neighbourhood size (the point included). By default the size is chosen per point
-        between :data:`NORMAL_K_MIN` and :data:`NORMAL_K_MAX` from the local noise and sampling.
+        between :data:`NORMAL_K_MIN` and :data:`NORMAL_K_MAX` (:data:`NORMAL_K_MAX_ABOVE` with
+        ``from_above`` and neither viewpoints nor scans) from the local noise and sampling.
     viewpoints : (3,) or (n, 3) array_like, optional
         Scanner position(s): each normal is flipped to face its viewpoint. Otherwise normals are
         oriented along a minimum spanning tree (see :func:`orient_normals`).
@@ -351,7 +373,7 @@ def estimate_normals(
     pts = _normal_points(points)
     n = len(pts)
     if k is None:
-        k_min, k_max = NORMAL_K_MIN, NORMAL_K_MAX
+        k_min, k_max = NORMAL_K_MIN, _k_max(from_above, viewpoints, scan_index)
     else:
         k_min = k_max = max(3, _count("k", k, 3))
     vp = _viewpoints(viewpoints, n)
@@ -387,7 +409,7 @@ def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool
     pts = _normal_points(points)
     n = len(pts)
     out = _core().estimate_normals(
-        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(NORMAL_K_MAX, n),
+        pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(_k_max(from_above), n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
         cover_k=min(COVER_K, n - 1), directions=COVER_DIRECTIONS, margin=COVER_MARGIN,
         cap=COVER_CAP, global_cap=COVER_GLOBAL_CAP, volume=_volume(volume),
@@ -501,7 +523,9 @@ def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_M
         a point whose neighbours mostly lie off its tangent plane gets at most
         :data:`VOLUME_FACTOR` x its nearest neighbour's distance, and an isolated return (a cell
         wide in most directions, beyond :data:`TYPICAL_CAP` x the surface points' median) at
-        most :data:`TYPICAL_CAP` x their median radius. Off by default: meshes and range scans
+        most :data:`TYPICAL_CAP` x their median radius; a point whose neighbours all lie to one
+        side leaves its grazing directions (a bisector beyond its own neighbour) out of its
+        cell. Off by default: meshes and range scans
         are surfaces throughout (on coarse meshes 1.5-11 % of the vertices would be taken for a
         volume at curved details).
     threads : int

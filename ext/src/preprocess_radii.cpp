@@ -79,6 +79,10 @@ Cell cell_radius(const double *points, const float *normals, size_t i, const uin
     double d1 = inf, dk = 0;
     uint32_t in_plane = 0, counted = 0;  // neighbours within the tangent plane's band
     for (uint32_t a = 0; a < nd_lanes; ++a) edge[a] = inf;
+    // with the volume bound: the cosine between each direction and the neighbour whose
+    // bisector bounds it
+    const bool opens = opt.volume_factor > 0;
+    alignas(32) float wcos[kMaxDirections] = {};
     // along each direction the cell ends at the nearest perpendicular bisector
     for (uint32_t m = 0; m < k; ++m) {
         const double *q = points + 3 * size_t(row[m]);
@@ -96,31 +100,49 @@ Cell cell_radius(const double *points, const float *normals, size_t i, const uin
         }
         if (!(r2 > 0.f)) continue;
         float floor_ = 1e-6f * std::sqrt(r2);  // a bisector nearly along the direction
+        // with opens: the cosine of the neighbour whose bisector is the nearest so far
+        const float inv = opens ? 1.f / std::sqrt(r2) : 0.f;
         // four directions at a time over whole lanes (the padding directions have
         // proj = 0: never a bisector); every lane rounds as the scalar loop does
 #if defined(__SSE2__) && !defined(POINTVIZ_NO_SIMD)
         const __m128 vx = _mm_set1_ps(x), vy = _mm_set1_ps(y), vr2 = _mm_set1_ps(r2),
-                     vfloor = _mm_set1_ps(floor_), vinf = _mm_set1_ps(inf);
+                     vfloor = _mm_set1_ps(floor_), vinf = _mm_set1_ps(inf),
+                     vinv = _mm_set1_ps(inv);
         for (uint32_t a = 0; a < nd_lanes; a += 4) {
             __m128 proj = _mm_add_ps(_mm_mul_ps(vx, _mm_load_ps(cs + a)),
                                      _mm_mul_ps(vy, _mm_load_ps(sn + a)));
             __m128 s = _mm_div_ps(vr2, _mm_add_ps(proj, proj));
             __m128 ok = _mm_cmpgt_ps(proj, vfloor);
             s = _mm_or_ps(_mm_and_ps(ok, s), _mm_andnot_ps(ok, vinf));
-            _mm_store_ps(edge + a, _mm_min_ps(s, _mm_load_ps(edge + a)));
+            const __m128 old = _mm_load_ps(edge + a);
+            if (opens) {
+                const __m128 nearer = _mm_cmplt_ps(s, old);
+                _mm_store_ps(wcos + a,
+                             _mm_or_ps(_mm_and_ps(nearer, _mm_mul_ps(proj, vinv)),
+                                       _mm_andnot_ps(nearer, _mm_load_ps(wcos + a))));
+            }
+            _mm_store_ps(edge + a, _mm_min_ps(s, old));
         }
 #else
         for (uint32_t a = 0; a < nd_lanes; ++a) {
             float proj = x * cs[a] + y * sn[a];
             float s = proj > floor_ ? r2 / (2.f * proj) : inf;
+            if (opens && s < edge[a]) wcos[a] = proj * inv;
             edge[a] = std::min(edge[a], s);
         }
 #endif
     }
-    double cell = 0.0;
+    double cell = 0.0, closed = 0.0;
     uint32_t bounded = 0;
+    const float graze = float(opt.open_cos);
     for (uint32_t a = 0; a < nd; ++a)
-        if (edge[a] < inf) cell = std::max(cell, double(edge[a])), edge[bounded++] = edge[a];
+        if (edge[a] < inf) {
+            cell = std::max(cell, double(edge[a]));
+            if (opens && wcos[a] >= graze) closed = std::max(closed, double(edge[a]));
+            edge[bounded++] = edge[a];
+        }
+    // a one-sided point's grazing directions left out (opens only)
+    if (bounded < nd && closed > 0) cell = closed;
     double r = std::min(opt.margin * cell, opt.cap * dk);
     // isolated or degenerate (no bisector anywhere): from the neighbour distances
     if (!(r > 0)) r = std::max(0.5 * d1, opt.cap * dk);

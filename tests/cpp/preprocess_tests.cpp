@@ -1064,6 +1064,37 @@ void test_orientation_from_above_and_volume_radii() {
           n - n_surface);
 }
 
+/// With the volume bound on, a one-sided point (on a plane's edge: some direction meets no
+/// bisector) leaves out the directions whose bisector lies beyond its own neighbour; interior
+/// points keep the surface model's radius exactly.
+void test_open_directions_of_one_sided_points() {
+    std::mt19937 g(5);
+    std::uniform_real_distribution<double> U(-0.3, 0.3);
+    std::vector<double> p;
+    for (int y = 0; y < 30; ++y)
+        for (int x = 0; x < 30; ++x) p.insert(p.end(), {x + U(g), y + U(g), 0.0});
+    const size_t n = p.size() / 3;
+    std::vector<float> nrm(3 * n, 0.f);
+    for (size_t i = 0; i < n; ++i) nrm[3 * i + 2] = 1.f;
+    KnnTree tree(p.data(), n, 2);
+    NeighbourTable t = knn_all(tree, p.data(), 10, 2);
+    CoverOptions plain, co;
+    co.volume_factor = 1.0;
+    std::vector<float> base = coverage_radii(p.data(), nrm.data(), t, plain);
+    std::vector<float> vol = coverage_radii(p.data(), nrm.data(), t, co);
+    size_t larger = 0, interior_changed = 0, edge = 0, edge_smaller = 0;
+    for (size_t i = 0; i < n; ++i) {
+        const double x = p[3 * i], y = p[3 * i + 1];
+        larger += vol[i] > base[i];
+        if (x > 4 && x < 25 && y > 4 && y < 25) interior_changed += vol[i] != base[i];
+        if (x < 0.5 || y < 0.5 || x > 28.5 || y > 28.5) ++edge, edge_smaller += vol[i] < base[i];
+    }
+    CHECK(larger == 0, "%zu radii grew with the open directions", larger);
+    CHECK(interior_changed == 0, "%zu interior radii changed", interior_changed);
+    CHECK(edge_smaller * 10 > edge, "only %zu of %zu edge points lost a grazing direction",
+          edge_smaller, edge);
+}
+
 int main() {
     test_knn_matches_brute_force();
     test_knn_kernels_agree_with_the_portable_ones();
@@ -1081,6 +1112,7 @@ int main() {
     test_radii_match_the_scalar_formula();
     test_thinning_matches_the_serial_visit();
     test_orientation_from_above_and_volume_radii();
+    test_open_directions_of_one_sided_points();
     std::printf("preprocess_tests: %d checks, %d failures\n", pointviz_tests::g_checks,
                 pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
