@@ -309,7 +309,7 @@ class PointCloud:
                 and getattr(self, "fit_report", None) is None)
 
     def fitted(self, *, thin: float | None = None, quadric: bool = True,
-               steps: bool = True, threads: int = 0) -> PointCloud:
+               steps: bool = True, edges: bool = True, threads: int = 0) -> PointCloud:
         """A copy moved onto a robust local fit of the surface, without redundant points.
 
         See :func:`pointviz.estimation.fit_surface`: each point moves onto a quadric fitted to
@@ -332,6 +332,11 @@ class PointCloud:
             in steps (:mod:`pointviz.depth_steps`: Kinect-class disparity quantisation) starts
             the fit from planes fitted over pixel patches as wide as the steps (default); False:
             from its raw points, as any scan.
+        edges : bool
+            With ``steps``: the patches stop at depth edges and the frame's flying pixels (mixed
+            depths between a foreground edge and the background, in mid-air) are dropped, with
+            a note saying how many (default); False: square patches across edges, nothing
+            dropped.
         threads : int
             Worker threads, 0 for all cores; results do not depend on it.
 
@@ -346,21 +351,26 @@ class PointCloud:
 
         points, normals = self._points, self._normals
         step_note = None
+        src = self  # the points the fit starts from: this cloud's, without flying pixels
         if steps and not self._normals_given:
-            points, step_normals, step_note = self._depth_step_planes(points)
+            points, step_normals, step_note, flying = self._depth_step_planes(points, edges)
             if step_normals is not None:
                 normals = step_normals
+            if flying is not None and flying.any():
+                kept = np.flatnonzero(~flying)
+                src = self._subset(kept)
+                points, normals = points[kept], normals[kept]
         fit = fit_surface(
-            points, normals, viewpoints=self.viewpoints, scan_index=self.scan_index,
-            scan_grid=self.scan_grid,
+            points, normals, viewpoints=src.viewpoints, scan_index=src.scan_index,
+            scan_grid=src.scan_grid,
             up=self.up, thin=FIT_THIN if thin is None else thin, quadric=quadric,
             radii=not self._radii_given, threads=threads)
         if points is not self._points:  # the shift from the points as read
-            fit.shift = np.linalg.norm(fit.points - self._points, axis=1).astype(np.float32)
+            fit.shift = np.linalg.norm(fit.points - src._points, axis=1).astype(np.float32)
         keep = np.flatnonzero(fit.keep)
         # every per-point attribute, estimated radii replaced; the points and normals the fit's
         # (this cloud's are not copied only to be replaced)
-        out = self._subset(keep, points=fit.points.take(keep, axis=0),
+        out = src._subset(keep, points=fit.points.take(keep, axis=0),
                            normals=fit.normals.take(keep, axis=0))
         if fit.radii is not None:
             radii = fit.radii.take(keep)
@@ -383,14 +393,15 @@ class PointCloud:
         }
         return out
 
-    def _depth_step_planes(self, points):
-        """(points, normals, note) moved onto planes over pixel patches sized to a depth-camera
-        frame's steps (:func:`pointviz.depth_steps.patch_planes`), or (points, None, None) when
-        this is not one frame on a pixel grid or its depths are not stepped."""
+    def _depth_step_planes(self, points, edges=True):
+        """(points, normals, note, flying) moved onto planes over pixel patches sized to a
+        depth-camera frame's steps (:func:`pointviz.depth_steps.patch_planes`), or (points,
+        None, None, None) when this is not one frame on a pixel grid or its depths are not
+        stepped."""
         from .depth_steps import depth_steps, patch_planes
 
         grid, vp = self.scan_grid, self.viewpoints
-        none = points, None, None
+        none = points, None, None, None
         if grid is None or vp is None or len(points) < 64 or (grid < 0).any():
             return none
         vp = np.asarray(vp, dtype=np.float64)
@@ -405,15 +416,18 @@ class PointCloud:
         step = depth_steps(points[:, 2])
         if step is None:
             return none
-        moved, normals, radius = patch_planes(points, grid, vp, step)
+        moved, normals, radius, flying = patch_planes(points, grid, vp, step, edges=edges)
         lo, hi = np.percentile(step, [5, 95])
         r = radius[radius > 0]
         width = (f"{2 * int(np.median(r)) + 1} px wide (median; 5-95 %: "
                  f"{2 * int(np.percentile(r, 5)) + 1}-{2 * int(np.percentile(r, 95)) + 1})"
                  if len(r) else "none")
         note = (f"depths in steps of {lo:.3g}-{hi:.3g} (5-95 %): the fit starts from planes over "
-                f"pixel patches {width}")
-        return moved, normals, note
+                f"pixel patches {width}" + (" that stop at depth edges" if edges else ""))
+        if flying.any():
+            note += (f"; dropped {int(flying.sum())} flying pixels (depths in mid-air between a "
+                     f"foreground edge and the background)")
+        return moved, normals, note, flying
 
     @property
     def colors(self) -> np.ndarray | None:

@@ -10,7 +10,11 @@ differently shaded disks). Here each point's plane is fitted over a square patch
 pixel grid that grows until the step's noise leaves the plane's slope within
 :data:`DEPTH_SLOPE_ERROR` (both measured on the frame: the step from the gaps between its
 distinct depths, the pixel's footprint from its rays), and shrinks while the patch's residual
-says it spans more than one surface (a depth edge, a corner). The point moves along its ray onto
+says it spans more than one surface (a corner). Patches do not reach across depth edges (a jump
+between neighbouring pixels larger than a few steps, the noise and the slope a surface can
+show): each holds only the pixels joined to its point without one. A depth camera's flying
+pixels (mixed depths in mid-air between a foreground edge and the background, fitting neither
+side) are found on the grid and dropped. The point moves along its ray onto
 that plane and takes its normal; the surface fit (:func:`pointviz.estimation.fit_surface`) then
 starts from those. Frames whose depths are not stepped (range scans, synthetic frames, frames
 already smoothed) are left alone: :func:`depth_steps` returns None for them.
@@ -51,6 +55,24 @@ PATCH_RESIDUAL_SIGMAS = 3.0
 # PATCH_RESIDUAL_SIGMAS x the frame's noise (a point on the edge of a foreground object whose
 # smallest patch is mostly background stays).
 MOVE_STEPS = 2.0
+
+
+# Depth edges. Two grid neighbours (row or column) whose ranges differ by more than the largest
+# of EDGE_STEPS steps, EDGE_SIGMAS x the frame's noise and EDGE_FOOTPRINTS pixel footprints (a
+# surface seen at up to 80 degrees from its normal changes by tan 80 = 5.7 footprints a pixel)
+# lie on two surfaces: no patch reaches across (each point's patch holds only the pixels joined
+# to it through neighbours without such a jump).
+EDGE_STEPS = 4.0
+EDGE_SIGMAS = 4.0
+EDGE_FOOTPRINTS = 6.0
+# A segment (pixels joined without a jump) of fewer points than this takes one plane over all of
+# its points instead of square patches.
+SMALL_SEGMENT = 64
+# Flying pixels: a point whose grid neighbours on opposite sides (along a row, column or
+# diagonal; one or two pixels away) lie on two surfaces, both farther than an edge's jump from
+# it, each continuing smoothly away from it and neither reaching it when extended, lies in mid
+# air between them (a depth camera's mixed pixel at a depth edge): it is dropped.
+FLYING_SPANS = ((1, 1), (1, 2), (2, 1))
 
 
 # The upper triangle of a 3x3 covariance, in the order of the moment images' products.
@@ -124,7 +146,64 @@ def _patch_sums(sat: np.ndarray, rows: np.ndarray, cols: np.ndarray, r: int) -> 
     return sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
 
 
-def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray):
+def _shifted(image: np.ndarray, dr: int, dc: int) -> np.ndarray:
+    """``out[r, c] = image[r + dr, c + dc]``, NaN where that falls outside the frame."""
+    h, w = image.shape
+    out = np.full_like(image, np.nan)
+    a0, a1, b0, b1 = max(0, -dr), min(h, h - dr), max(0, -dc), min(w, w - dc)
+    if a0 < a1 and b0 < b1:
+        out[a0:a1, b0:b1] = image[a0 + dr:a1 + dr, b0 + dc:b1 + dc]
+    return out
+
+
+def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
+    """Which pixels of a range image (h, w; NaN: no point) are flying (module docstring,
+    :data:`FLYING_SPANS`): between two surfaces along a row, column or diagonal, farther than
+    ``jump`` (h, w) from both and from both extended to it."""
+    fly = np.zeros(ranges.shape, dtype=bool)
+    r, j = ranges, jump
+    with np.errstate(invalid="ignore"):
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            for a, b in FLYING_SPANS:
+                near_a = _shifted(r, -a * dr, -a * dc)
+                far_a = _shifted(r, -(a + 1) * dr, -(a + 1) * dc)
+                near_b = _shifted(r, b * dr, b * dc)
+                far_b = _shifted(r, (b + 1) * dr, (b + 1) * dc)
+                between = (((near_a < r - j) & (near_b > r + j))
+                           | ((near_a > r + j) & (near_b < r - j)))
+                smooth = (np.abs(near_a - far_a) <= j) & (np.abs(near_b - far_b) <= j)
+                neither = ((np.abs(r - near_a - a * (near_a - far_a)) > j)
+                           & (np.abs(r - near_b - b * (near_b - far_b)) > j))
+                fly |= between & smooth & neither
+    return fly
+
+
+def depth_segments(ranges: np.ndarray, jump: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Label image (h, w; -1 where not ``valid``) of the pieces of surface: pixels joined through
+    row and column neighbours whose ranges differ by at most the smaller of their ``jump``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    h, w = ranges.shape
+    ids = np.arange(h * w).reshape(h, w)
+    src, dst = [], []
+    with np.errstate(invalid="ignore"):
+        for sl_a, sl_b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                           ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+            ok = (valid[sl_a] & valid[sl_b]
+                  & (np.abs(ranges[sl_a] - ranges[sl_b]) <= np.minimum(jump[sl_a], jump[sl_b])))
+            src.append(ids[sl_a][ok])
+            dst.append(ids[sl_b][ok])
+    src, dst = np.concatenate(src), np.concatenate(dst)
+    graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(h * w, h * w))
+    _, labels = connected_components(graph, directed=False)
+    labels = labels.reshape(h, w)
+    labels[~valid] = -1
+    return labels
+
+
+def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray,
+                 edges: bool = True):
     """Planes over pixel patches sized to the depth steps (module docstring).
 
     Parameters
@@ -137,6 +216,9 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
         The camera's position.
     step : (n,) float
         Each point's depth step (:func:`depth_steps`).
+    edges : bool
+        Patches stop at depth edges and flying pixels are found (default); False: square
+        patches across edges, no point flying (the fit before depth edges were handled).
 
     Returns
     -------
@@ -148,6 +230,8 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
         The patch planes' normals, facing the camera.
     radius : (n,) int
         Each point's patch half-width in pixels (0: no plane, the normal toward the camera).
+    flying : (n,) bool
+        The flying pixels (:func:`flying_pixels`), to be dropped.
     """
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
@@ -172,19 +256,27 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     centre = pts.mean(axis=0)
     c = pts - centre
     seen = np.isfinite(rng)  # points at the camera are no measurement: not in any patch
-    vr, vc, vcen = rows[seen], cols[seen], c[seen]
-    chan = np.zeros((h, w, 10))
-    chan[vr, vc, 0] = 1.0
-    chan[vr, vc, 1:4] = vcen
-    for m, (p, q) in enumerate(_PAIRS):
-        chan[vr, vc, 4 + m] = vcen[:, p] * vcen[:, q]
-    sat = _summed_area(chan)
-    del chan
 
-    def planes(sel, r):
-        """Plane of each point of ``sel`` over its patch of half-width r: normal, mean point,
-        RMS residual along its ray, and whether the patch determines a plane."""
-        sums = _patch_sums(sat, rows[sel], cols[sel], r)
+    def moments(sel):
+        """The 10 moments (1, p, pp^T) of the points ``sel``: (len(sel), 10)."""
+        cs = c[sel]
+        out = np.empty((len(sel), 10))
+        out[:, 0] = 1.0
+        out[:, 1:4] = cs
+        for m, (p, q) in enumerate(_PAIRS):
+            out[:, 4 + m] = cs[:, p] * cs[:, q]
+        return out
+
+    def moment_table(sel, r0, c0, hh, ww):
+        """Summed-area table of the moment images of the points ``sel`` over the window of the
+        frame from (r0, c0), hh x ww pixels."""
+        chan = np.zeros((hh, ww, 10))
+        chan[rows[sel] - r0, cols[sel] - c0] = moments(sel)
+        return _summed_area(chan)
+
+    def plane_of(sums, sel):
+        """Plane of each point of ``sel`` from its patch's moment sums: normal, mean point, RMS
+        residual along its ray, and whether the patch determines a plane."""
         cnt = sums[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             mu = sums[:, 1:4] / cnt[:, None]
@@ -203,7 +295,9 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     # NOISE_RADIUS patches (quantisation alone: 1/sqrt(12) on a slope spanning steps, 0 on a
     # terrace; a patch across an edge is rarer than the median)
     sample = np.flatnonzero(seen)[::NOISE_SAMPLE]
-    _, _, res, fine = planes(sample, NOISE_RADIUS)
+    sat = moment_table(np.flatnonzero(seen), 0, 0, h, w)
+    _, _, res, fine = plane_of(_patch_sums(sat, rows[sample], cols[sample], NOISE_RADIUS),
+                               sample)
     step_s = step[sample]
     noise = float(np.median(res[fine] / step_s[fine])) if fine.any() else 0.0
     sigma = step * max(noise, 1.0 / np.sqrt(12.0))
@@ -219,23 +313,69 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     out_n = np.zeros((n, 3))
     mean = np.zeros((n, 3))
     stays = np.zeros(n, dtype=bool)
-    todo = seen.copy()
     final = np.zeros(n, dtype=np.intp) - 1
-    # from each point's chosen patch down: the first whose residual says one surface
-    for level in range(len(radii) - 1, -1, -1):
-        sel = np.flatnonzero(todo & (choice >= level))
-        if not len(sel):
-            continue
-        nrm, mu, res, fine = planes(sel, int(radii[level]))
-        one = fine & (res <= limit[sel])
-        # the smallest patch is taken even when it spans two surfaces (the point stays)
-        good = one | ((level == 0) & fine)
-        take = sel[good]
-        out_n[take] = nrm[good]
-        mean[take] = mu[good]
-        final[take] = level
-        stays[take] = ~one[good]
-        todo[take] = False
+    flying = np.zeros(n, dtype=bool)
+
+    def fit_patches(sel, table, r0, c0):
+        """From each point of ``sel``'s chosen patch down (moment sums from ``table``, whose
+        window starts at (r0, c0)): the first whose residual says one surface."""
+        todo = np.zeros(n, dtype=bool)
+        todo[sel] = True
+        for level in range(len(radii) - 1, -1, -1):
+            at = np.flatnonzero(todo & (choice >= level))
+            if not len(at):
+                continue
+            sums = _patch_sums(table, rows[at] - r0, cols[at] - c0, int(radii[level]))
+            nrm, mu, res, fine = plane_of(sums, at)
+            one = fine & (res <= limit[at])
+            # the smallest patch is taken even when it spans two surfaces (the point stays)
+            good = one | ((level == 0) & fine)
+            take = at[good]
+            out_n[take] = nrm[good]
+            mean[take] = mu[good]
+            final[take] = level
+            stays[take] = ~one[good]
+            todo[take] = False
+
+    if not edges:
+        fit_patches(np.flatnonzero(seen), sat, 0, 0)
+    else:
+        del sat
+        # depth edges and flying pixels, on the range image
+        jump = np.maximum(np.maximum(EDGE_STEPS * step, EDGE_SIGMAS * sigma),
+                          EDGE_FOOTPRINTS * footprint)
+        rimg = np.full((h, w), np.nan)
+        jimg = np.full((h, w), np.nan)
+        rimg[rows[seen], cols[seen]] = rng[seen]
+        jimg[rows[seen], cols[seen]] = jump[seen]
+        fly_img = flying_pixels(rimg, jimg)
+        flying = fly_img[rows, cols] & seen
+        valid = np.isfinite(rimg) & ~fly_img
+        labels = depth_segments(rimg, jimg, valid)[rows, cols]
+        labels[~seen | flying] = -1
+        member = np.flatnonzero(labels >= 0)
+        lab = labels[member]
+        size = np.bincount(lab)
+        # small segments: one plane over each
+        small = member[size[lab] < SMALL_SEGMENT]
+        if len(small):
+            sl = labels[small]
+            sums = np.stack([np.bincount(sl, weights=col, minlength=len(size))
+                             for col in moments(small).T], axis=1)[sl]
+            nrm, mu, res, fine = plane_of(sums, small)
+            take = small[fine]
+            out_n[take] = nrm[fine]
+            mean[take] = mu[fine]
+            final[take] = 0
+            stays[take] = res[fine] > limit[take]
+        # large segments: square patches over the segment's own pixels
+        order = member[np.argsort(lab, kind="stable")]
+        bounds = np.concatenate([[0], np.cumsum(size)])
+        for seg in np.flatnonzero(size >= SMALL_SEGMENT):
+            sel = order[bounds[seg]:bounds[seg + 1]]
+            r0, c0 = int(rows[sel].min()), int(cols[sel].min())
+            hh, ww = int(rows[sel].max()) + 1 - r0, int(cols[sel].max()) + 1 - c0
+            fit_patches(sel, moment_table(sel, r0, c0, hh, ww), r0, c0)
     # normals toward the camera; each point onto its plane along its ray
     flip = np.einsum("ij,ij->i", out_n, rel) > 0
     out_n[flip] *= -1
@@ -250,4 +390,4 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     bad = final < 0
     out_n[bad] = -ray[bad]
     radius = np.where(final >= 0, radii[np.maximum(final, 0)], 0)
-    return moved, out_n.astype(np.float32), radius
+    return moved, out_n.astype(np.float32), radius, flying

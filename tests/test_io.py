@@ -388,13 +388,16 @@ def test_organised_pcd_is_a_depth_frame_fitted_as_a_raw_scan(tmp_path, rng, mode
 
 
 def kinect_frame(w=320, h=240, f=290.0, baseline=0.075, subpixel=8, noise=0.0, quantise=True,
-                 rng=None):
+                 rng=None, mixed=False):
     """A depth camera's frame of an analytic scene: a wall through (0, 0, 3) turned 40 degrees
     about the vertical, a sphere of radius 0.35 in front. With ``quantise``, as a Kinect-class
     camera measures it: the disparity f b / z (plus Gaussian ``noise`` in pixels) rounded to
     1/``subpixel`` pixel, then converted back to depth (steps of z^2 / (subpixel f b): 4-5
-    pixels' spacing at 3 m, as on PCL's Kinect frames). Returns the (h * w, 3) points (NaN past
-    6 m) and the scene: (wall normal, wall point, sphere centre, radius)."""
+    pixels' spacing at 3 m, as on PCL's Kinect frames). With ``mixed``, the sphere's outermost
+    ring of pixels (those with a row or column neighbour on the wall) are mixed pixels, as real
+    sensors return them: a depth drawn uniformly between the sphere's and the wall's along the
+    ray. Returns the (h * w, 3) points (NaN past 6 m) and the scene: (wall normal, wall point,
+    sphere centre, radius)."""
     rows, cols = np.mgrid[0:h, 0:w]
     d = np.column_stack([(cols.ravel() - w / 2 + 0.5) / f, (rows.ravel() - h / 2 + 0.5) / f,
                          np.ones(w * h)])
@@ -407,7 +410,16 @@ def kinect_frame(w=320, h=240, f=290.0, baseline=0.075, subpixel=8, noise=0.0, q
     disc = b * b - (centre @ centre - radius * radius)
     with np.errstate(invalid="ignore"):
         t_sphere = -b - np.sqrt(disc)
-    t = np.where((disc > 0) & (t_sphere > 0), t_sphere, (wall_p @ wall_n) / (d @ wall_n))
+    on_sphere = (disc > 0) & (t_sphere > 0)
+    t_wall = (wall_p @ wall_n) / (d @ wall_n)
+    t = np.where(on_sphere, t_sphere, t_wall)
+    if mixed:
+        img = on_sphere.reshape(h, w)
+        ring = img.copy()
+        ring[1:-1, 1:-1] &= ~(img[:-2, 1:-1] & img[2:, 1:-1] & img[1:-1, :-2] & img[1:-1, 2:])
+        ring = ring.ravel()
+        u = rng.random(ring.sum())
+        t[ring] = t_sphere[ring] + u * (t_wall[ring] - t_sphere[ring])
     pts = t[:, None] * d
     if quantise:
         z = pts[:, 2]
@@ -467,6 +479,52 @@ def test_depth_steps_the_fit_follows_the_surface_through_kinect_quantisation(tmp
     seen = np.linalg.norm(cloud.points, axis=1) > 0
     assert seen.sum() >= 0.99 * len(fitted)
     assert scene_errors(cloud.subset(seen), scene)[0] < 3.0
+
+
+@pytest.mark.parametrize("noise", [0.05, 0.0])
+def test_depth_edges_flying_pixels_dropped_and_patches_stop_at_edges(tmp_path, noise):
+    # oracle: the analytic scene again, now with mixed pixels along the sphere's silhouette
+    # (depths between the sphere's and the wall's, as real sensors return them). Fitted with
+    # square patches across the edge (edges=False, as before) some stay in mid-air and the
+    # normals next to the edge follow patches straddling it
+    from scipy import ndimage
+
+    pts, scene = kinect_frame(noise=noise, rng=np.random.default_rng(7), mixed=True)
+    wall_n, wall_p, centre, radius = scene
+    path = tmp_path / "mixed.pcd"
+    write_pcd(path, pts, 320, 240)
+    with pytest.warns(UserWarning, match="NaN/inf"):
+        raw = load(path, estimate=False, fit=False)
+    exact, _ = kinect_frame(quantise=False)
+    sphere = (np.abs(np.linalg.norm(exact - centre, axis=1) - radius) < 1e-6).reshape(240, 320)
+    to_edge = np.where(sphere, ndimage.distance_transform_edt(sphere),
+                       ndimage.distance_transform_edt(~sphere))  # pixels to the silhouette
+
+    def measure(cloud):
+        """Fraction of points farther than 3 steps from both surfaces, points within 3 steps
+        of one, mean normal angle of those within 3 pixels of the silhouette."""
+        p = cloud.points.astype(np.float64)
+        to_wall = np.abs((p - wall_p) @ wall_n)
+        off = p - centre
+        to_sphere = np.abs(np.linalg.norm(off, axis=1) - radius)
+        step = p[:, 2] ** 2 / (290.0 * 0.075 * 8)
+        on = np.minimum(to_wall, to_sphere) <= 3 * step
+        truth = np.where((to_sphere < to_wall)[:, None],
+                         off / np.linalg.norm(off, axis=1, keepdims=True), -wall_n)
+        cos = np.abs(np.einsum("ij,ij->i", cloud.normals, truth))
+        angle = np.degrees(np.arccos(np.clip(cos, 0, 1)))
+        near = on & (to_edge[cloud.scan_grid[:, 0], cloud.scan_grid[:, 1]] <= 3)
+        return np.mean(~on), on.sum(), angle[near].mean()
+
+    before = measure(raw.fitted(edges=False))
+    fitted = raw.fitted()
+    after = measure(fitted)
+    assert before[0] > 3e-4 and after[0] < 1e-4, (before, after)  # the flying ones gone
+    assert after[1] >= 0.995 * before[1], (before, after)  # no surface lost
+    assert after[2] < 0.7 * before[2], (before, after)  # normals next to the edge
+    assert scene_errors(fitted, scene)[0] < 2.0
+    note = [n for n in fitted.notes if "flying pixels" in n]
+    assert note and int(note[0].split("dropped ")[1].split()[0]) > 100
 
 
 def test_depth_steps_leave_frames_without_steps_alone(tmp_path, rng):
