@@ -28,6 +28,11 @@ import numpy as np
 # (PCL's Kinect frames: 125-508 in 210-255k points, 1 in 500-2000; its stereo frame 940 in
 # 209k; a frame of floats, noisy or not: about one per point).
 STEPPED_LEVELS_FRACTION = 0.02
+# ... and when those steps are a small part of the depth, as a quantiser's are (PCL's frames:
+# median step 0.07-1.3 % of the depth, at most 2.8 %): a frame of a few surfaces at distinct
+# depths (two walls, 0.5 m apart: 2 levels) has few distinct depths too, but its "steps" are the
+# gaps between its surfaces, which a patch must not smooth over.
+STEP_MAX_FRACTION = 0.05
 # Each depth's step is the median gap between consecutive distinct depths among this many
 # around it (a level the frame does not use doubles one gap; millimetre rounding of near
 # depths makes gaps of 1 and 2 mm alternate).
@@ -82,7 +87,7 @@ _PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 def depth_steps(depth: np.ndarray) -> np.ndarray | None:
     """Each point's depth step (same units), measured from the frame's distinct depths, or None
     when the frame's depths are not stepped (more than :data:`STEPPED_LEVELS_FRACTION` distinct
-    depths per point)."""
+    depths per point, or steps over :data:`STEP_MAX_FRACTION` of the depth)."""
     z = np.asarray(depth, dtype=np.float32)
     n = len(z)
     levels, which = np.unique(z, return_inverse=True)
@@ -93,8 +98,11 @@ def depth_steps(depth: np.ndarray) -> np.ndarray | None:
     half = STEP_WINDOW // 2
     padded = np.pad(gaps, (half, half + 1), mode="edge")
     windows = np.lib.stride_tricks.sliding_window_view(padded, STEP_WINDOW)[: len(levels)]
-    step = np.median(windows, axis=1)
-    return step[which.reshape(-1)]
+    step = np.median(windows, axis=1)[which.reshape(-1)]
+    seen = np.abs(z) > 0  # (zero-coded invalid pixels aside)
+    if not seen.any() or np.median(step[seen] / np.abs(z[seen])) > STEP_MAX_FRACTION:
+        return None
+    return step
 
 
 def _smallest_eigen(cov: np.ndarray):

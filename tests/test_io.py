@@ -545,6 +545,26 @@ def test_depth_steps_leave_frames_without_steps_alone(tmp_path, rng):
         pts[:, 2]).sum())) is None
 
 
+def test_depth_steps_leave_few_surfaces_at_distinct_depths_alone(tmp_path):
+    """Two walls facing the camera, 0.5 m apart: two distinct depths among 3072 points, as few
+    as a quantised frame has, but their gap is a depth edge, not a step: no patch may smooth it
+    into a ramp (the fit leaves both walls where they are)."""
+    from pointviz.depth_steps import depth_steps
+
+    w, h = 64, 48
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    z = np.where(u < w // 2, 2.0, 2.5)
+    pts = np.c_[((u - w / 2) / 500 * z).ravel(), ((v - h / 2) / 500 * z).ravel(), z.ravel()]
+    assert depth_steps(pts[:, 2]) is None
+    path = tmp_path / "walls.pcd"
+    write_pcd(path, pts, w, h)
+    cloud = load(path)
+    near = cloud.points[:, 2] < 2.25
+    np.testing.assert_allclose(cloud.points[near, 2], 2.0, atol=1e-6)
+    np.testing.assert_allclose(cloud.points[~near, 2], 2.5, atol=1e-6)
+    assert not any("depths in steps" in note for note in cloud.notes)
+
+
 def test_organised_pcd_viewpoint_and_frames_that_are_not_the_cameras(tmp_path, rng):
     # the VIEWPOINT's origin is the camera: a frame taken from (1, 2, 3)
     origin = np.array([1.0, 2.0, 3.0])
