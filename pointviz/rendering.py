@@ -350,25 +350,29 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     return frame
 
 
-#: Where _core_scene keeps its last answer: on the Scene (its memo) or on the SurfelScene a
-#: frame was asked of (its ``__dict__``; the answer holds the tree, not the SurfelScene, so no
-#: reference cycle keeps a dropped cloud's tree alive).
+#: Where _core_scene keeps its answers: on the Scene (its memo) or on the SurfelScene a frame was
+#: asked of (its ``__dict__``; the answers hold the tree, not the SurfelScene, so no reference
+#: cycle keeps a dropped cloud's tree alive).
 _CORE_MEMO = "_core_scene"
+#: How many answers a scene keeps (the oldest goes first): one per variant of a view that
+#: benchmarks and comparisons interleave (bench_lod.py renders nine per view).
+CORE_SCENES_KEPT = 16
 
 
 def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
     """The core's RenderScene of a frame, its local origin, the budget's share scale
     (:func:`budget_scale`, None unless ``lod_pixels == "auto"``) and the scene's look.
 
-    The last answer is kept with the Scene or SurfelScene the frame was asked of, keyed by
-    everything it is made from that may differ between two frames of that scene: the camera
-    (its lights follow the view, the share scale the frame), ``lod_pixels`` and ``max_error``,
-    the ground and look asked for, and each tree's traversal options (read when the scene is
-    made, and settable in place). The rest (objects, materials, lights, sky, ground) is frozen
-    with the scene. A kept RenderScene is never changed after it is made (so frames on other
-    threads may share it), and is kept only when every object is a SurfelScene (a geometry
-    behind a Python callback is given each render's cancel flag). Frames of one view (the
-    viewer's progressive samples, benchmarks) then pay none of this Python again.
+    The last CORE_SCENES_KEPT answers are kept with the Scene or SurfelScene the frame was
+    asked of, keyed by everything they are made from that may differ between two frames of that
+    scene: the camera (its lights follow the view, the share scale the frame), ``lod_pixels``
+    and ``max_error``, the ground and look asked for, and each tree's traversal options (read
+    when the scene is made, and settable in place). The rest (objects, materials, lights, sky,
+    ground) is frozen with the scene. A kept RenderScene is never changed after it is made (so
+    frames on other threads may share it), and is kept only when every object is a
+    SurfelScene (a geometry behind a Python callback is given each render's cancel flag).
+    Frames of one view (the viewer's progressive samples, a benchmark's interleaved variants)
+    then pay none of this Python again.
     """
     from .scene import Scene
     from .surfels import SurfelScene
@@ -386,10 +390,11 @@ def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
         except TypeError:  # a ground or look that is not hashable: made anew every frame
             key = None
     kept = holder.get(_CORE_MEMO) if key is not None else None
-    if kept is not None and kept[0] == key:
-        trees = [scene_or_cloud] if kept[2] is None else kept[2]
-        if kept[1] == _options_key(trees):
-            return kept[3]
+    if kept is not None:
+        trees, entries = kept
+        hit = entries.get(key)
+        if hit is not None and hit[0] == _options_key([scene_or_cloud] if trees is None else trees):
+            return hit[1]
     scene = as_scene(scene_or_cloud, **kw)
     if isinstance(scene_or_cloud, Scene):
         if "look" in kw:
@@ -405,9 +410,17 @@ def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
     if key is not None:
         trees = [scene.geometry(i) for i in range(len(scene.objects))]
         if all(isinstance(t, SurfelScene) for t in trees):
-            # (a SurfelScene does not keep itself: that cycle would outlive the last reference)
-            mine = None if scene_or_cloud is not scene and trees == [scene_or_cloud] else trees
-            holder[_CORE_MEMO] = (key, _options_key(trees), mine, out)
+            if kept is None:
+                # (a SurfelScene does not keep itself: that cycle would outlive its last reference)
+                mine = None if scene_or_cloud is not scene and trees == [scene_or_cloud] else trees
+                kept = holder.setdefault(_CORE_MEMO, (mine, {}))
+            entries = kept[1]
+            entries[key] = (_options_key(trees), out)
+            while len(entries) > CORE_SCENES_KEPT:  # the oldest first (a dict keeps its order)
+                try:
+                    del entries[next(iter(entries))]
+                except (KeyError, RuntimeError, StopIteration):  # another thread's frame
+                    break
     return out
 
 

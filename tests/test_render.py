@@ -401,6 +401,16 @@ def test_a_kept_render_scene_gives_the_frame_a_new_one_gives():
         assert rendering._CORE_MEMO in ss.__dict__
         fresh = pointviz.render(_fresh(scene), cam, **kw, **v)
         assert _same_frame(kept, fresh), (cam.eye, v)
+    # several are kept (a benchmark's interleaved variants of one view), the oldest dropped
+    first = rendering._core_scene(_fresh(ss), {}, far, "auto", 0.005)
+    rendering._core_scene(ss, {}, far, 1.0, None)
+    trees, entries = ss.__dict__[rendering._CORE_MEMO]
+    assert trees is None and len(entries) == 2
+    assert rendering._core_scene(ss, {}, far, "auto", 0.005)[0] is first[0]
+    for k in range(rendering.CORE_SCENES_KEPT):
+        rendering._core_scene(ss, {}, far, float(k + 2), None)
+    assert len(entries) == rendering.CORE_SCENES_KEPT
+    assert rendering._core_scene(ss, {}, far, "auto", 0.005)[0] is not first[0]
     # a Scene keeps its own; the SurfelScene inside it is not the key
     sc = Scene(ss, ground="mirror")
     for cam in (far, turned, far):
