@@ -11,6 +11,7 @@
 #include <ctime>
 
 #include "pointviz/parallel.h"
+#include "pointviz/shading_math.h"
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(POINTVIZ_NO_SIMD)
 #include <immintrin.h>
@@ -231,8 +232,9 @@ private:
 
 /// Cosine-weighted direction in the hemisphere around unit `n`, `t`, `b` its basis (make_basis).
 inline Vec3 sample_cosine(Vec3 n, Vec3 t, Vec3 b, float u1, float u2) {
-    float r = std::sqrt(u1), phi = 2.f * kPi * u2;
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.f, 1.f - u1)));
+    float r = std::sqrt(u1), c, s;
+    turn_sincos(u2, c, s);
+    return normalize(t * (r * c) + b * (r * s) + n * std::sqrt(std::max(0.f, 1.f - u1)));
 }
 
 inline Vec3 clamp01(Vec3 c) {
@@ -251,8 +253,9 @@ struct Cone {
 inline Vec3 sample_cone(const Cone &c, float u1, float u2) {
     float cz = 1.f - u1 * (1.f - c.cos_max);
     float sz = std::sqrt(std::max(0.f, 1.f - cz * cz));
-    float phi = 2.f * kPi * u2;
-    return normalize(c.t * (sz * std::cos(phi)) + c.b * (sz * std::sin(phi)) + c.axis * cz);
+    float cs, sn;
+    turn_sincos(u2, cs, sn);
+    return normalize(c.t * (sz * cs) + c.b * (sz * sn) + c.axis * cz);
 }
 /// Uniform direction in the cone of half-angle `angle` around unit `axis`.
 inline Vec3 sample_cone(Vec3 axis, float angle, float u1, float u2) {
@@ -847,7 +850,7 @@ private:
                 float ndl = dot(n, ldir);
                 if (ndl <= 0.f) continue;
                 Vec3 hv = normalize(ldir - r.d);
-                float spec = m.specular * std::pow(std::max(0.f, dot(n, hv)), m.shininess);
+                float spec = m.specular * lobe_pow(std::max(0.f, dot(n, hv)), m.shininess);
                 Vec3 add = weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
                 if (!set_.shadows || !L.cast_shadows) {
                     color_[pr.pixel] += add;
