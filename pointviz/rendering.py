@@ -271,8 +271,6 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     -------
     Frame
     """
-    from .scene import Scene
-
     if camera is None or not hasattr(camera, "pixel_angle"):
         raise InputError("camera: expected a pointviz.Camera")
     from .denoise import check_available, denoise_quality
@@ -286,22 +284,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     kw = {} if ground is None else {"ground": ground}
     if look is not None:
         kw["look"] = look
-    scene = as_scene(scene_or_cloud, **kw)
-    if isinstance(scene_or_cloud, Scene):
-        if look is not None:
-            scene = scene.with_look(look)
-        if ground is not None:
-            scene = scene.with_ground(ground)
     spp, reflections, seed, threads, lod_pixels = (
         opts.spp, opts.reflections, opts.seed, opts.threads, opts.lod_pixels)
     shadows = opts.shadows
     lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
-    rs, origin = scene.to_core(camera, lod_pixels, max_error)
-    share_scale = None
-    if lod_pixels == "auto":
-        share_scale = budget_scale(scene.bounds(), camera)
-        rs.set_budget_scale(share_scale)
+    rs, origin, share_scale, scene_look = _core_scene(scene_or_cloud, kw, camera, lod_pixels,
+                                                      max_error)
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
@@ -345,10 +334,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
                          "lod_pixels": lod_pixels, "max_error": max_error, "seed": seed, "threads": threads,
-                         "look": scene.look.name, "denoise": quality or False}
+                         "look": scene_look.name, "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])
-    if scene.look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
+    if scene_look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
         from .images import auto_exposure
 
         frame.exposure = auto_exposure(frame.color, frame.object_alpha)
@@ -359,6 +348,94 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     if progress is not None:
         progress(stats["tiles_total"], stats["tiles_total"])
     return frame
+
+
+#: Where _core_scene keeps its answers: on the Scene (its memo) or on the SurfelScene a frame was
+#: asked of (its ``__dict__``; the answers hold the tree, not the SurfelScene, so no reference
+#: cycle keeps a dropped cloud's tree alive).
+_CORE_MEMO = "_core_scene"
+#: How many answers a scene keeps (the oldest goes first): one per variant of a view that
+#: benchmarks and comparisons interleave (bench_lod.py renders nine per view).
+CORE_SCENES_KEPT = 16
+
+
+def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
+    """The core's RenderScene of a frame, its local origin, the budget's share scale
+    (:func:`budget_scale`, None unless ``lod_pixels == "auto"``) and the scene's look.
+
+    The last CORE_SCENES_KEPT answers are kept with the Scene or SurfelScene the frame was
+    asked of, keyed by everything they are made from that may differ between two frames of that
+    scene: the camera (its lights follow the view, the share scale the frame), ``lod_pixels``
+    and ``max_error``, the ground and look asked for, and each tree's traversal options (read
+    when the scene is made, and settable in place). The rest (objects, materials, lights, sky,
+    ground) is frozen with the scene. A kept RenderScene is never changed after it is made (so
+    frames on other threads may share it), and is kept only when every object is a
+    SurfelScene (a geometry behind a Python callback is given each render's cancel flag).
+    Frames of one view (the viewer's progressive samples, a benchmark's interleaved variants)
+    then pay none of this Python again.
+    """
+    from .scene import Scene
+    from .surfels import SurfelScene
+
+    holder = None
+    if isinstance(scene_or_cloud, Scene):
+        holder = scene_or_cloud._memo
+    elif isinstance(scene_or_cloud, SurfelScene):
+        holder = scene_or_cloud.__dict__
+    key = None
+    if holder is not None:
+        try:
+            key = (tuple(sorted(kw.items())), _camera_key(camera), lod_pixels, max_error)
+            hash(key)
+        except TypeError:  # a ground or look that is not hashable: made anew every frame
+            key = None
+    kept = holder.get(_CORE_MEMO) if key is not None else None
+    if kept is not None:
+        trees, entries = kept
+        hit = entries.get(key)
+        if hit is not None and hit[0] == _options_key([scene_or_cloud] if trees is None else trees):
+            return hit[1]
+    scene = as_scene(scene_or_cloud, **kw)
+    if isinstance(scene_or_cloud, Scene):
+        if "look" in kw:
+            scene = scene.with_look(kw["look"])
+        if "ground" in kw:
+            scene = scene.with_ground(kw["ground"])
+    rs, origin = scene.to_core(camera, lod_pixels, max_error)
+    share_scale = None
+    if lod_pixels == "auto":
+        share_scale = budget_scale(scene.bounds(), camera)
+        rs.set_budget_scale(share_scale)
+    out = (rs, origin, share_scale, scene.look)
+    if key is not None:
+        trees = [scene.geometry(i) for i in range(len(scene.objects))]
+        if all(isinstance(t, SurfelScene) for t in trees):
+            if kept is None:
+                # (a SurfelScene does not keep itself: that cycle would outlive its last reference)
+                mine = None if scene_or_cloud is not scene and trees == [scene_or_cloud] else trees
+                kept = holder.setdefault(_CORE_MEMO, (mine, {}))
+            entries = kept[1]
+            entries[key] = (_options_key(trees), out)
+            while len(entries) > CORE_SCENES_KEPT:  # the oldest first (a dict keeps its order)
+                try:
+                    del entries[next(iter(entries))]
+                except (KeyError, RuntimeError, StopIteration):  # another thread's frame
+                    break
+    return out
+
+
+def _camera_key(camera) -> tuple:
+    """What of a camera a frame's RenderScene depends on (values, not the object)."""
+    return (tuple(np.asarray(camera.eye, dtype=np.float64).tolist()),
+            tuple(np.asarray(camera.forward, dtype=np.float64).tolist()),
+            tuple(np.asarray(camera.right, dtype=np.float64).tolist()),
+            tuple(np.asarray(camera.true_up, dtype=np.float64).tolist()),
+            float(camera.tan_half), int(camera.width), int(camera.height))
+
+
+def _options_key(trees) -> tuple:
+    """The traversal options of each tree, as values (they are settable in place)."""
+    return tuple(t.options_key() for t in trees)
 
 
 def _cancel_check(cancel):

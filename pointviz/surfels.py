@@ -120,6 +120,12 @@ def _core_call(fn, *args, **kw):
         raise InputError(str(exc)) from None
 
 
+#: The traversal options a SurfelScene hands to each query (SurfelScene.trace_options).
+_OPTION_FIELDS = ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
+                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide", "packets",
+                  "shadow_flip_weight", "sky_flip_weight", "colour_pixel_response")
+
+
 class SurfelScene:
     """A point cloud's surfel hierarchy, ready for ray queries.
 
@@ -422,14 +428,18 @@ class SurfelScene:
         render_scene.add_surfels(self._tree, self.trace_options(lod_pixels, max_error), offset,
                                  material)
 
+    def options_key(self) -> tuple:
+        """The traversal options' values (what :meth:`trace_options` copies): they are settable
+        in place, so a frame's kept RenderScene is keyed by them."""
+        o = self._options
+        return tuple(getattr(o, k) for k in _OPTION_FIELDS)
+
     def trace_options(self, lod_pixels: float | str | None = None, max_error: float | None = None):
         """A copy of the traversal options, optionally with another LoD threshold, or with the
         error budget (``lod_pixels="auto"``, ``max_error``: mean FLIP, see
         :func:`pointviz.rendering.render`)."""
         o = _core.TraceOptions()
-        for k in ("lod", "cull", "box_depth", "lod_pixels", "interpolation", "window",
-                  "lod_criterion", "lod_max_extent", "slabs", "max_error", "isa", "wide", "packets",
-                  "shadow_flip_weight", "sky_flip_weight", "colour_pixel_response"):
+        for k in _OPTION_FIELDS:
             setattr(o, k, getattr(self._options, k))
         if isinstance(lod_pixels, str):
             _, max_error = check_lod(lod_pixels, max_error)

@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 import pointviz
-from pointviz import Camera, DirectionalLight, Material, Scene, shapes
+from pointviz import Camera, DirectionalLight, Material, Scene, rendering, shapes
 from pointviz.errors import CancelledError, InputError
 
 
@@ -358,3 +358,94 @@ def test_cli_render_hands_the_cloud_over_to_the_build(tmp_path, rng):
     np.testing.assert_array_equal(a.alpha, b.alpha)
     assert np.abs(a.color - b.color).max() < 1e-3
     assert main(argv) == 0 and (tmp_path / "f.png").exists()
+
+
+def _fresh(scene_or_cloud):
+    """The same scene with no kept RenderScene (rendering._core_scene's memo dropped)."""
+    holder = scene_or_cloud._memo if isinstance(scene_or_cloud, Scene) else scene_or_cloud.__dict__
+    holder.pop(rendering._CORE_MEMO, None)
+    return scene_or_cloud
+
+
+def _same_frame(a, b):
+    return all(np.array_equal(getattr(a, k).view(np.uint32), getattr(b, k).view(np.uint32))
+               for k in ("color", "depth", "normal", "alpha", "albedo", "object_alpha")) \
+        and a.exposure == b.exposure
+
+
+def test_a_kept_render_scene_gives_the_frame_a_new_one_gives():
+    # render() keeps the last RenderScene with the SurfelScene or Scene it was asked of, keyed
+    # by the camera, lod_pixels / max_error, the ground and look asked for and the trees'
+    # options. Oracle: the same frame with nothing kept. Each change of a key must be seen.
+    cloud = shapes.torus(30_000, color=(0.8, 0.5, 0.3))
+    ss = pointviz.SurfelScene(cloud, threads=1)
+    base = Camera.fit(cloud, width=64, height=48)
+    far = Camera.look_at(np.asarray(base.target) - np.asarray(base.forward) * base.distance * 5,
+                         base.target, up=base.true_up, width=64, height=48)
+    turned = Camera.look_at(np.asarray(base.target) + np.asarray(base.right) * base.distance * 5,
+                            base.target, up=base.true_up, width=64, height=48)
+    kw = dict(spp=1, threads=1, shadows=True)
+    frames = [
+        (ss, far, dict(lod_pixels="auto", max_error=0.005)),
+        (ss, far, dict(lod_pixels="auto", max_error=0.005)),   # kept
+        (ss, far, dict(lod_pixels="auto", max_error=0.02)),
+        (ss, far, dict(lod_pixels=1.0)),
+        (ss, base, dict(lod_pixels="auto", max_error=0.005)),
+        (ss, turned, dict(lod_pixels="auto", max_error=0.005)),   # the look's lights turn too
+        (ss, turned, dict(lod_pixels="auto", max_error=0.005, look="outdoor")),
+        (ss, turned, dict(lod_pixels="auto", max_error=0.005, ground="glossy")),
+        (ss, turned, dict(lod_pixels=0.0)),
+    ]
+    for scene, cam, v in frames:
+        kept = pointviz.render(scene, cam, **kw, **v)
+        assert rendering._CORE_MEMO in ss.__dict__
+        fresh = pointviz.render(_fresh(scene), cam, **kw, **v)
+        assert _same_frame(kept, fresh), (cam.eye, v)
+    # several are kept (a benchmark's interleaved variants of one view), the oldest dropped
+    first = rendering._core_scene(_fresh(ss), {}, far, "auto", 0.005)
+    rendering._core_scene(ss, {}, far, 1.0, None)
+    trees, entries = ss.__dict__[rendering._CORE_MEMO]
+    assert trees is None and len(entries) == 2
+    assert rendering._core_scene(ss, {}, far, "auto", 0.005)[0] is first[0]
+    for k in range(rendering.CORE_SCENES_KEPT):
+        rendering._core_scene(ss, {}, far, float(k + 2), None)
+    assert len(entries) == rendering.CORE_SCENES_KEPT
+    assert rendering._core_scene(ss, {}, far, "auto", 0.005)[0] is not first[0]
+    # a Scene keeps its own; the SurfelScene inside it is not the key
+    sc = Scene(ss, ground="mirror")
+    for cam in (far, turned, far):
+        kept = pointviz.render(sc, cam, **kw, lod_pixels="auto", max_error=0.005)
+        assert rendering._CORE_MEMO in sc._memo
+        assert _same_frame(kept, pointviz.render(_fresh(sc), cam, **kw, lod_pixels="auto",
+                                                 max_error=0.005))
+    # the trees' options are settable in place: a frame after a change sees it
+    v = dict(lod_pixels=4.0)
+    before = pointviz.render(ss, far, **kw, **v)
+    ss._options.lod = False
+    try:
+        after = pointviz.render(ss, far, **kw, **v)
+        assert _same_frame(after, pointviz.render(_fresh(ss), far, **kw, **v))
+        assert not _same_frame(after, before)  # (the change is visible: the test can fail)
+    finally:
+        ss._options.lod = True
+    assert _same_frame(before, pointviz.render(ss, far, **kw, **v))
+
+
+def test_a_kept_render_scene_keeps_no_cycle_on_the_surfel_scene():
+    # the SurfelScene keeps its last RenderScene in its __dict__, which must not refer back to
+    # it: a dropped cloud's tree is freed by reference counting, not by a later garbage cycle
+    import gc
+    import weakref
+
+    cloud = shapes.sphere(5_000)
+    ss = pointviz.SurfelScene(cloud, threads=1)
+    pointviz.render(ss, Camera.fit(cloud, width=32, height=24), spp=1, threads=1,
+                    lod_pixels="auto", max_error=0.005)
+    assert rendering._CORE_MEMO in ss.__dict__
+    ref = weakref.ref(ss)
+    gc.disable()
+    try:
+        del ss
+        assert ref() is None
+    finally:
+        gc.enable()

@@ -161,3 +161,17 @@ def test_progressive_samples_equal_the_general_path(monkeypatch, ball):
                              threads=1, seed=9)
     assert_same_bits(fast, slow, "progressive")
     assert fast.stats["primary_background"] > 0
+
+
+@pytest.mark.parametrize("width, height", [(53, 37), (61, 45), (7, 5)])
+def test_widths_off_the_vector_step_equal_the_general_path(monkeypatch, ball, width, height):
+    # the faded ground's distances go four pixels a step (render.cpp, ground_distances_row):
+    # tiles whose width leaves a remainder (the frame's last column of tiles) take the scalar
+    # tail; every width of it, far views where most tiles are faded ground
+    scene = Scene(ball, look="studio")
+    for factor, shift in ((7.5, (0.0, 0.0)), (20.0, (0.1, 0.05)), (4.0, (0.25, -0.2))):
+        cam = at(Camera.fit(ball, width=width, height=height), factor, shift)
+        fast, slow = render_both(monkeypatch, scene, cam, spp=1, threads=1)
+        assert_same_bits(fast, slow, f"{width}x{height} at {factor}x")
+        if factor >= 7.5 and width > 16:
+            assert fast.stats["primary_background"] > 0

@@ -11,6 +11,11 @@
 #include <ctime>
 
 #include "pointviz/parallel.h"
+#include "pointviz/shading_math.h"
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(POINTVIZ_NO_SIMD)
+#include <immintrin.h>
+#endif
 
 namespace pointviz {
 namespace {
@@ -227,8 +232,9 @@ private:
 
 /// Cosine-weighted direction in the hemisphere around unit `n`, `t`, `b` its basis (make_basis).
 inline Vec3 sample_cosine(Vec3 n, Vec3 t, Vec3 b, float u1, float u2) {
-    float r = std::sqrt(u1), phi = 2.f * kPi * u2;
-    return normalize(t * (r * std::cos(phi)) + b * (r * std::sin(phi)) + n * std::sqrt(std::max(0.f, 1.f - u1)));
+    float r = std::sqrt(u1), c, s;
+    turn_sincos(u2, c, s);
+    return normalize(t * (r * c) + b * (r * s) + n * std::sqrt(std::max(0.f, 1.f - u1)));
 }
 
 inline Vec3 clamp01(Vec3 c) {
@@ -247,8 +253,9 @@ struct Cone {
 inline Vec3 sample_cone(const Cone &c, float u1, float u2) {
     float cz = 1.f - u1 * (1.f - c.cos_max);
     float sz = std::sqrt(std::max(0.f, 1.f - cz * cz));
-    float phi = 2.f * kPi * u2;
-    return normalize(c.t * (sz * std::cos(phi)) + c.b * (sz * std::sin(phi)) + c.axis * cz);
+    float cs, sn;
+    turn_sincos(u2, cs, sn);
+    return normalize(c.t * (sz * cs) + c.b * (sz * sn) + c.axis * cz);
 }
 /// Uniform direction in the cone of half-angle `angle` around unit `axis`.
 inline Vec3 sample_cone(Vec3 axis, float angle, float u1, float u2) {
@@ -280,6 +287,70 @@ struct Nearest {
     SurfaceHit hit;
     int object;   ///< -1 miss, -2 ground, else object index
 };
+
+// ---- the faded ground's distances, a row at a time ----------------------------------------
+//
+// CameraModel::direction_at and intersect()'s expressions per pixel: each lane's operations are
+// the scalar ones, in the same order (IEEE single precision, correctly rounded whatever the
+// vector width; no fused multiply-add: -ffp-contract=off and no FMA instructions), so the values
+// are the same bits. The vector versions compute both sides of normalize()'s `l > 0` and select
+// (the scalar loop's branch kept the compiler from vectorising it: a division by a zero length
+// must not be executed speculatively under the default trapping-math rules).
+
+/// One pixel: the portable expression, and the tail of the vector loops.
+inline float ground_distance(float sx, float py, float h, Vec3 f, Vec3 r, Vec3 u, Vec3 gn) {
+    // forward + right * sx + up * py, component by component
+    const float ax = (f.x + r.x * sx) + u.x * py;
+    const float ay = (f.y + r.y * sx) + u.y * py;
+    const float az = (f.z + r.z * sx) + u.z * py;
+    const float l = std::sqrt((ax * ax + ay * ay) + az * az);
+    const float inv = 1.f / l;
+    const float dx = l > 0.f ? ax * inv : ax, dy = l > 0.f ? ay * inv : ay, dz = l > 0.f ? az * inv : az;
+    return h / ((dx * gn.x + dy * gn.y) + dz * gn.z);
+}
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(POINTVIZ_NO_SIMD)
+#define POINTVIZ_GROUND_SIMD 1
+
+/// Four pixels a step (SSE2: every x86-64 CPU); returns how many were done.
+int ground_distances_sse2(const float *px, int n, float py, float h, Vec3 f, Vec3 r, Vec3 u,
+                          Vec3 gn, float *t) {
+    // the row's constants: f + u * py is not one of the expressions (the sums go f + r sx first)
+    const __m128 fx = _mm_set1_ps(f.x), fy = _mm_set1_ps(f.y), fz = _mm_set1_ps(f.z);
+    const __m128 rx = _mm_set1_ps(r.x), ry = _mm_set1_ps(r.y), rz = _mm_set1_ps(r.z);
+    const __m128 uyx = _mm_set1_ps(u.x * py), uyy = _mm_set1_ps(u.y * py), uyz = _mm_set1_ps(u.z * py);
+    const __m128 gx = _mm_set1_ps(gn.x), gy = _mm_set1_ps(gn.y), gz = _mm_set1_ps(gn.z);
+    const __m128 hh = _mm_set1_ps(h), one = _mm_set1_ps(1.f), zero = _mm_setzero_ps();
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
+        const __m128 sx = _mm_loadu_ps(px + i);
+        const __m128 ax = _mm_add_ps(_mm_add_ps(fx, _mm_mul_ps(rx, sx)), uyx);
+        const __m128 ay = _mm_add_ps(_mm_add_ps(fy, _mm_mul_ps(ry, sx)), uyy);
+        const __m128 az = _mm_add_ps(_mm_add_ps(fz, _mm_mul_ps(rz, sx)), uyz);
+        const __m128 l = _mm_sqrt_ps(_mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, ax), _mm_mul_ps(ay, ay)),
+                                                _mm_mul_ps(az, az)));
+        const __m128 inv = _mm_div_ps(one, l);
+        const __m128 pos = _mm_cmpgt_ps(l, zero);
+        const __m128 dx = _mm_or_ps(_mm_and_ps(pos, _mm_mul_ps(ax, inv)), _mm_andnot_ps(pos, ax));
+        const __m128 dy = _mm_or_ps(_mm_and_ps(pos, _mm_mul_ps(ay, inv)), _mm_andnot_ps(pos, ay));
+        const __m128 dz = _mm_or_ps(_mm_and_ps(pos, _mm_mul_ps(az, inv)), _mm_andnot_ps(pos, az));
+        const __m128 den = _mm_add_ps(_mm_add_ps(_mm_mul_ps(dx, gx), _mm_mul_ps(dy, gy)), _mm_mul_ps(dz, gz));
+        _mm_storeu_ps(t + i, _mm_div_ps(hh, den));
+    }
+    return i;
+}
+
+#endif
+
+/// ground_distance for the pixel centres px[i], i < n, of the row at py.
+void ground_distances_row(const float *px, int n, float py, float h, Vec3 f, Vec3 r, Vec3 u,
+                          Vec3 gn, float *t) {
+    int i = 0;
+#ifdef POINTVIZ_GROUND_SIMD
+    i = ground_distances_sse2(px, n, py, h, f, r, u, gn, t);
+#endif
+    for (; i < n; ++i) t[i] = ground_distance(px[i], py, h, f, r, u, gn);
+}
 
 class TileRenderer {
 public:
@@ -516,22 +587,9 @@ private:
     }
 
     /// The ground's distance along the camera rays through the pixel centres (px[i], py), i < n,
-    /// given h = dot(ground point - eye, normal): CameraModel::direction_at and intersect()'s
-    /// expressions written for the vectoriser (each lane's operations are the scalar ones, in
-    /// the same order, so the values are the same bits).
+    /// given h = dot(ground point - eye, normal): ground_distances_row with this camera.
     void ground_distances(const float *px, int n, float py, float h, float *t) const {
-        const Vec3 f = cam_.forward, r = cam_.right, u = cam_.up, gn = scene_.ground_normal;
-        for (int i = 0; i < n; ++i) {
-            const float sx = px[i];
-            // forward + right * sx + up * py, component by component
-            const float ax = (f.x + r.x * sx) + u.x * py;
-            const float ay = (f.y + r.y * sx) + u.y * py;
-            const float az = (f.z + r.z * sx) + u.z * py;
-            const float l = std::sqrt((ax * ax + ay * ay) + az * az);
-            const float inv = 1.f / l;
-            const float dx = l > 0.f ? ax * inv : ax, dy = l > 0.f ? ay * inv : ay, dz = l > 0.f ? az * inv : az;
-            t[i] = h / ((dx * gn.x + dy * gn.y) + dz * gn.z);
-        }
+        ground_distances_row(px, n, py, h, cam_.forward, cam_.right, cam_.up, scene_.ground_normal, t);
     }
 
     /// A tile classify_tile proved to show only background, written to `out`: per sample the
@@ -792,7 +850,7 @@ private:
                 float ndl = dot(n, ldir);
                 if (ndl <= 0.f) continue;
                 Vec3 hv = normalize(ldir - r.d);
-                float spec = m.specular * std::pow(std::max(0.f, dot(n, hv)), m.shininess);
+                float spec = m.specular * lobe_pow(std::max(0.f, dot(n, hv)), m.shininess);
                 Vec3 add = weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
                 if (!set_.shadows || !L.cast_shadows) {
                     color_[pr.pixel] += add;

@@ -4,6 +4,7 @@
 // coordinates, rays parallel to disks, NaN directions) must give correct answers or clean misses.
 //
 // Random cases are seeded by their index; a failure prints the case name and index to replay it.
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -19,6 +20,7 @@
 #include "pointviz/dispatch.h"
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
+#include "pointviz/shading_math.h"
 #include "pointviz/tree.h"
 #include "check.h"
 
@@ -977,6 +979,50 @@ void test_staged_build() {
 
 }  // namespace
 
+
+/// The shading's sine, cosine and lobe power (shading_math.h) against double precision: the
+/// cosine and sine of 2 pi u within 3e-7 on a grid of 2^20 turns' fractions and the largest
+/// floats below 1, quarter turns and their neighbours; x^e within e ulp (relative), or 1e-36
+/// where the power underflows, for whole exponents, and std::pow's value for the others.
+void test_shading_math() {
+    double worst = 0.0;
+    auto check_turn = [&](float u) {
+        float c, s;
+        turn_sincos(u, c, s);
+        const double a = 2.0 * 3.14159265358979323846 * double(u);
+        const double ec = std::fabs(double(c) - std::cos(a)), es = std::fabs(double(s) - std::sin(a));
+        worst = std::max({worst, ec, es});
+        CHECK(ec <= 3e-7 && es <= 3e-7, "turn_sincos(%.9g) = (%.9g, %.9g), errors %.3g %.3g", u, c, s, ec, es);
+    };
+    for (int i = 0; i < (1 << 20); ++i) check_turn(float(i) / float(1 << 20));
+    for (float q : {0.125f, 0.25f, 0.375f, 0.5f, 0.625f, 0.75f, 0.875f, 1.f}) {
+        float v = q;
+        for (int k = 0; k < 64; ++k) {
+            v = std::nextafter(v, 0.f);
+            check_turn(v);
+        }
+        if (q < 1.f) {
+            v = q;
+            for (int k = 0; k < 64; ++k) {
+                check_turn(v);
+                v = std::nextafter(v, 1.f);
+            }
+        }
+    }
+    std::printf("turn_sincos: largest error %.3g\n", worst);
+    for (float e : {1.f, 2.f, 3.f, 5.f, 7.f, 16.f, 48.f, 100.f, 1024.f}) {
+        for (int i = 0; i <= 4096; ++i) {
+            const float x = float(i) / 4096.f;
+            const double ref = std::pow(double(x), double(e)), got = double(lobe_pow(x, e));
+            const double tol = std::max(double(e) * std::ldexp(1.0, -24) * ref, 1e-36);
+            CHECK(std::fabs(got - ref) <= tol, "lobe_pow(%.9g, %g) = %.9g, expected %.9g", x, e, got, ref);
+        }
+    }
+    for (float e : {0.5f, 1.5f, 47.9f, 2000.f, 0.f})
+        for (float x : {0.f, 0.25f, 0.7f, 1.f})
+            CHECK(lobe_pow(x, e) == std::pow(x, e), "lobe_pow(%g, %g) is not std::pow's", x, e);
+}
+
 int main() {
     test_one_surfel();
     test_duplicates();
@@ -989,6 +1035,7 @@ int main() {
     test_lod_and_interpolation_are_clean();
     test_lod_budget();
     test_render();
+    test_shading_math();
     test_empty_and_oversized_builds_throw();
     test_staged_build();
     std::printf("core_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
