@@ -149,9 +149,10 @@ def _summed_area(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape) -
     elsewhere (the cumulative sums taken in place: rows, then columns)."""
     h, w = shape
     sat = np.zeros((h + 1, w + 1, image.shape[1]), dtype=np.float64)
+    sat.reshape((h + 1) * (w + 1), -1)[(rows + 1) * (w + 1) + (cols + 1)] = image
     body = sat[1:, 1:]
-    body[rows, cols] = image
-    np.cumsum(body, axis=0, out=body)
+    for i in range(1, h):  # down the rows: one row's sums at a time (as numpy.cumsum adds)
+        np.add(body[i], body[i - 1], out=body[i])
     np.cumsum(body, axis=1, out=body)
     return sat
 
@@ -172,16 +173,6 @@ def _patch_sums(sat: np.ndarray, rows: np.ndarray, cols: np.ndarray, r: int) -> 
     return out
 
 
-def _shifted(image: np.ndarray, dr: int, dc: int) -> np.ndarray:
-    """``out[r, c] = image[r + dr, c + dc]``, NaN where that falls outside the frame."""
-    h, w = image.shape
-    out = np.full_like(image, np.nan)
-    a0, a1, b0, b1 = max(0, -dr), min(h, h - dr), max(0, -dc), min(w, w - dc)
-    if a0 < a1 and b0 < b1:
-        out[a0:a1, b0:b1] = image[a0 + dr:a1 + dr, b0 + dc:b1 + dc]
-    return out
-
-
 def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
     """Which pixels of a range image (h, w; NaN: no point) are flying (module docstring,
     :data:`FLYING_SPANS`): between two surfaces along a row, column or diagonal, farther than
@@ -189,11 +180,14 @@ def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
     fly = np.zeros(ranges.shape, dtype=bool)
     r, j = ranges, jump
     reach = max(max(a, b) for a, b in FLYING_SPANS) + 1
+    h, w = r.shape
+    # views of the image shifted by up to ``reach`` pixels: NaN (no point) past the border
+    padded = np.pad(r, reach, constant_values=np.nan)
     with np.errstate(invalid="ignore"):
         lo, hi = r - j, r + j
         for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
             # the image shifted k pixels along the direction, each k once
-            at = {k: _shifted(r, k * dr, k * dc)
+            at = {k: padded[reach + k * dr:reach + k * dr + h, reach + k * dc:reach + k * dc + w]
                   for k in range(-reach, reach + 1) if k}
             below = {k: at[k] < lo for k in at if abs(k) < reach}
             above = {k: at[k] > hi for k in at if abs(k) < reach}
