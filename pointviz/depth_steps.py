@@ -80,6 +80,9 @@ SMALL_SEGMENT = 64
 FLYING_SPANS = ((1, 1), (1, 2), (2, 1))
 
 
+# Points per chunk of the plane fits (numpy temporaries of 128 KB stay in cache).
+_CHUNK = 16384
+
 # The upper triangle of a 3x3 covariance, in the order of the moment images' products.
 _PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -303,9 +306,20 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
         frame from (r0, c0), hh x ww pixels."""
         return _summed_area(mom[sel], rows[sel] - r0, cols[sel] - c0, (hh, ww))
 
-    def plane_of(sums, sel):
-        """Plane of each point of ``sel`` from its patch's moment sums: normal, mean point, RMS
-        residual along its ray, and whether the patch determines a plane."""
+    def plane_of(sel, sums_of):
+        """Plane of each point of ``sel`` from its patch's moment sums (``sums_of(i, j)``: those
+        of ``sel[i:j]``): normal, mean point, RMS residual along its ray, and whether the patch
+        determines a plane. Worked through in chunks of :data:`_CHUNK` points (the temporaries
+        stay in cache; each point's arithmetic is the same)."""
+        m = len(sel)
+        nrm, mu, res, fine = np.empty((m, 3)), np.empty((m, 3)), np.empty(m), np.empty(m, bool)
+        for i in range(0, m, _CHUNK):
+            j = min(i + _CHUNK, m)
+            nrm[i:j], mu[i:j], res[i:j], fine[i:j] = plane_chunk(sums_of(i, j), sel[i:j])
+        return nrm, mu, res, fine
+
+    def plane_chunk(sums, sel):
+        """:func:`plane_of` for one chunk, from its moment sums."""
         cnt = sums[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             mu = sums[:, 1:4] / cnt[:, None]
@@ -335,8 +349,8 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     # terrace; a patch across an edge is rarer than the median)
     sample = np.flatnonzero(seen)[::NOISE_SAMPLE]
     sat = moment_table(np.flatnonzero(seen), 0, 0, h, w)
-    _, _, res, fine = plane_of(_patch_sums(sat, rows[sample], cols[sample], NOISE_RADIUS),
-                               sample)
+    _, _, res, fine = plane_of(sample, lambda i, j: _patch_sums(
+        sat, rows[sample[i:j]], cols[sample[i:j]], NOISE_RADIUS))
     step_s = step[sample]
     noise = float(np.median(res[fine] / step_s[fine])) if fine.any() else 0.0
     sigma = step * max(noise, 1.0 / np.sqrt(12.0))
@@ -372,8 +386,9 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
             at = np.concatenate([left, fresh]) if len(left) else fresh
             if not len(at):
                 continue
-            sums = _patch_sums(table, rows[at] - r0, cols[at] - c0, int(radii[level]))
-            nrm, mu, res, fine = plane_of(sums, at)
+            radius = int(radii[level])
+            nrm, mu, res, fine = plane_of(at, lambda i, j: _patch_sums(
+                table, rows[at[i:j]] - r0, cols[at[i:j]] - c0, radius))
             one = fine & (res <= limit[at])
             # the smallest patch is taken even when it spans two surfaces (the point stays)
             good = one | fine if level == 0 else one
@@ -409,7 +424,7 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
             sl = labels[small]
             sums = np.stack([np.bincount(sl, weights=col, minlength=len(size))
                              for col in mom[small].T], axis=1)[sl]
-            nrm, mu, res, fine = plane_of(sums, small)
+            nrm, mu, res, fine = plane_of(small, lambda i, j: sums[i:j])
             take = small[fine]
             out_n[take] = nrm[fine]
             mean[take] = mu[fine]
@@ -426,15 +441,15 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
             fit_patches(sel, moment_table(sel, r0, c0, hh, ww), r0, c0)
     # normals toward the camera; each point onto its plane along its ray
     flip = np.einsum("ij,ij->i", out_n, rel) > 0
-    out_n[flip] *= -1
-    moved = pts.copy()
+    out_n *= np.where(flip, -1.0, 1.0)[:, None]
     dn = np.einsum("ij,ij->i", out_n, ray)  # < 0: facing the camera
     dist = np.einsum("ij,ij->i", out_n, c - mean)  # the point's height over its plane
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -dist / dn  # along the ray
     cap = np.maximum(MOVE_STEPS * step, PATCH_RESIDUAL_SIGMAS * sigma)
     move = (final >= 0) & ~stays & (np.abs(dn) > 0.1) & (np.abs(t) <= cap)
-    moved[move] += t[move, None] * ray[move]
+    # (t = 0 elsewhere: the point plus 0 x its ray is the point, to the bit)
+    moved = pts + np.where(move, t, 0.0)[:, None] * ray
     bad = final < 0
     out_n[bad] = -ray[bad]
     radius = np.where(final >= 0, radii[np.maximum(final, 0)], 0)
