@@ -181,30 +181,34 @@ def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
     :data:`FLYING_SPANS`): between two surfaces along a row, column or diagonal, farther than
     ``jump`` (h, w) from both and from both extended to it."""
     fly = np.zeros(ranges.shape, dtype=bool)
-    r, j = ranges, jump
     reach = max(max(a, b) for a, b in FLYING_SPANS) + 1
-    h, w = r.shape
+    h, w = ranges.shape
     # views of the image shifted by up to ``reach`` pixels: NaN (no point) past the border
-    padded = np.pad(r, reach, constant_values=np.nan)
+    padded = np.pad(ranges, reach, constant_values=np.nan)
+    band = max(1, _CHUNK // max(w, 1))  # rows at a time (the temporaries stay in cache)
     with np.errstate(invalid="ignore"):
-        lo, hi = r - j, r + j
-        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            # the image shifted k pixels along the direction, each k once
-            at = {k: padded[reach + k * dr:reach + k * dr + h, reach + k * dc:reach + k * dc + w]
-                  for k in range(-reach, reach + 1) if k}
-            below = {k: at[k] < lo for k in at if abs(k) < reach}
-            above = {k: at[k] > hi for k in at if abs(k) < reach}
-            smooth = {k: np.abs(at[k] - at[k + (1 if k > 0 else -1)]) <= j
-                      for k in at if abs(k) < reach}
-            for a, b in FLYING_SPANS:
-                near_a, far_a = at[-a], at[-(a + 1)]
-                near_b, far_b = at[b], at[b + 1]
-                between = (below[-a] & above[b]) | (above[-a] & below[b])
-                between &= smooth[-a]
-                between &= smooth[b]
-                between &= np.abs(r - near_a - a * (near_a - far_a)) > j
-                between &= np.abs(r - near_b - b * (near_b - far_b)) > j
-                fly |= between
+        for y0 in range(0, h, band):
+            y1 = min(y0 + band, h)
+            r, j, out = ranges[y0:y1], jump[y0:y1], fly[y0:y1]
+            lo, hi = r - j, r + j
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                # the image shifted k pixels along the direction, each k once
+                at = {k: padded[reach + k * dr + y0:reach + k * dr + y1,
+                                reach + k * dc:reach + k * dc + w]
+                      for k in range(-reach, reach + 1) if k}
+                below = {k: at[k] < lo for k in at if abs(k) < reach}
+                above = {k: at[k] > hi for k in at if abs(k) < reach}
+                smooth = {k: np.abs(at[k] - at[k + (1 if k > 0 else -1)]) <= j
+                          for k in at if abs(k) < reach}
+                for a, b in FLYING_SPANS:
+                    near_a, far_a = at[-a], at[-(a + 1)]
+                    near_b, far_b = at[b], at[b + 1]
+                    between = (below[-a] & above[b]) | (above[-a] & below[b])
+                    between &= smooth[-a]
+                    between &= smooth[b]
+                    between &= np.abs(r - near_a - a * (near_a - far_a)) > j
+                    between &= np.abs(r - near_b - b * (near_b - far_b)) > j
+                    out |= between
     return fly
 
 
