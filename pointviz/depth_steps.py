@@ -80,6 +80,9 @@ SMALL_SEGMENT = 64
 FLYING_SPANS = ((1, 1), (1, 2), (2, 1))
 
 
+# Points per chunk of the plane fits (numpy temporaries of 128 KB stay in cache).
+_CHUNK = 16384
+
 # The upper triangle of a 3x3 covariance, in the order of the moment images' products.
 _PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -105,13 +108,12 @@ def depth_steps(depth: np.ndarray) -> np.ndarray | None:
     return step
 
 
-def _smallest_eigen(cov: np.ndarray):
-    """Smallest and middle eigenvalues and the smallest's unit eigenvector of each symmetric
-    3x3 matrix of ``cov`` (m, 3, 3), in closed form (the trigonometric solution of the
-    characteristic cubic; the eigenvector as the longest cross product of two rows of
-    cov - lambda I): 5-10x faster than ``numpy.linalg.eigh`` on many small matrices."""
-    a00, a01, a02 = cov[:, 0, 0], cov[:, 0, 1], cov[:, 0, 2]
-    a11, a12, a22 = cov[:, 1, 1], cov[:, 1, 2], cov[:, 2, 2]
+def _smallest_eigen(a00, a01, a02, a11, a12, a22):
+    """Smallest and middle eigenvalues and the smallest's unit eigenvector (m, 3) of each
+    symmetric 3x3 matrix given by its upper triangle's entries (each (m,)), in closed form (the
+    trigonometric solution of the characteristic cubic; the eigenvector as the longest cross
+    product of two rows of cov - lambda I): 5-10x faster than ``numpy.linalg.eigh`` on many
+    small matrices. Works on the entries one array each (no (m, 3, 3) stacks)."""
     m = (a00 + a11 + a22) / 3.0
     b00, b11, b22 = a00 - m, a11 - m, a22 - m
     p = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
@@ -124,24 +126,37 @@ def _smallest_eigen(cov: np.ndarray):
     largest = m + 2.0 * sp * np.cos(phi)
     smallest = m + 2.0 * sp * np.cos(phi + 2.0 * np.pi / 3.0)
     middle = 3.0 * m - largest - smallest
-    r0 = np.column_stack([a00 - smallest, a01, a02])
-    r1 = np.column_stack([a01, a11 - smallest, a12])
-    r2 = np.column_stack([a02, a12, a22 - smallest])
-    cand = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)
-    norm = np.linalg.norm(cand, axis=2)
+    # rows of cov - smallest I: r0 = (d0, a01, a02), r1 = (a01, d1, a12), r2 = (a02, a12, d2)
+    d0, d1, d2 = a00 - smallest, a11 - smallest, a22 - smallest
+    # r0 x r1, r0 x r2, r1 x r2 (as numpy.cross: a1 b2 - a2 b1, a2 b0 - a0 b2, a0 b1 - a1 b0)
+    cand = (((a01 * a12 - a02 * d1), (a02 * a01 - d0 * a12), (d0 * d1 - a01 * a01)),
+            ((a01 * d2 - a02 * a12), (a02 * a02 - d0 * d2), (d0 * a12 - a01 * a02)),
+            ((d1 * d2 - a12 * a12), (a12 * a02 - a01 * d2), (a01 * a12 - d1 * a02)))
+    norm = np.empty((len(m), 3))
+    for k, (x, y, z) in enumerate(cand):
+        norm[:, k] = np.sqrt(x * x + y * y + z * z)
     best = norm.argmax(axis=1)
-    idx = np.arange(len(cov))
+    pick = [best == 1, best == 2]
+    length = np.where(pick[1], norm[:, 2], np.where(pick[0], norm[:, 1], norm[:, 0]))
+    vec = np.empty((len(m), 3))
     with np.errstate(divide="ignore", invalid="ignore"):
-        vec = cand[idx, best] / norm[idx, best][:, None]
+        for i in range(3):
+            comp = np.where(pick[1], cand[2][i], np.where(pick[0], cand[1][i], cand[0][i]))
+            np.divide(comp, length, out=vec[:, i])
     return smallest, middle, vec
 
 
-def _summed_area(image: np.ndarray) -> np.ndarray:
-    """The summed-area table of ``image`` (H, W, C): (H + 1, W + 1, C), zero first row and
-    column."""
-    h, w = image.shape[:2]
-    sat = np.zeros((h + 1, w + 1) + image.shape[2:], dtype=np.float64)
-    np.cumsum(np.cumsum(image, axis=0), axis=1, out=sat[1:, 1:])
+def _summed_area(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape) -> np.ndarray:
+    """The summed-area table (H + 1, W + 1, C), zero first row and column, of the image
+    (H, W) = ``shape`` that holds ``image`` (m, C) at the pixels (rows, cols) and zeros
+    elsewhere (the cumulative sums taken in place: rows, then columns)."""
+    h, w = shape
+    sat = np.zeros((h + 1, w + 1, image.shape[1]), dtype=np.float64)
+    sat.reshape((h + 1) * (w + 1), -1)[(rows + 1) * (w + 1) + (cols + 1)] = image
+    body = sat[1:, 1:]
+    for i in range(1, h):  # down the rows: one row's sums at a time (as numpy.cumsum adds)
+        np.add(body[i], body[i - 1], out=body[i])
+    np.cumsum(body, axis=1, out=body)
     return sat
 
 
@@ -151,16 +166,13 @@ def _patch_sums(sat: np.ndarray, rows: np.ndarray, cols: np.ndarray, r: int) -> 
     h, w = sat.shape[0] - 1, sat.shape[1] - 1
     r0, r1 = np.clip(rows - r, 0, h), np.clip(rows + r + 1, 0, h)
     c0, c1 = np.clip(cols - r, 0, w), np.clip(cols + r + 1, 0, w)
-    return sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
-
-
-def _shifted(image: np.ndarray, dr: int, dc: int) -> np.ndarray:
-    """``out[r, c] = image[r + dr, c + dc]``, NaN where that falls outside the frame."""
-    h, w = image.shape
-    out = np.full_like(image, np.nan)
-    a0, a1, b0, b1 = max(0, -dr), min(h, h - dr), max(0, -dc), min(w, w - dc)
-    if a0 < a1 and b0 < b1:
-        out[a0:a1, b0:b1] = image[a0 + dr:a1 + dr, b0 + dc:b1 + dc]
+    flat = sat.reshape((h + 1) * (w + 1), -1)
+    r0 *= w + 1
+    r1 *= w + 1
+    out = np.take(flat, r1 + c1, axis=0)
+    out -= np.take(flat, r0 + c1, axis=0)
+    out -= np.take(flat, r1 + c0, axis=0)
+    out += np.take(flat, r0 + c0, axis=0)
     return out
 
 
@@ -169,20 +181,34 @@ def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
     :data:`FLYING_SPANS`): between two surfaces along a row, column or diagonal, farther than
     ``jump`` (h, w) from both and from both extended to it."""
     fly = np.zeros(ranges.shape, dtype=bool)
-    r, j = ranges, jump
+    reach = max(max(a, b) for a, b in FLYING_SPANS) + 1
+    h, w = ranges.shape
+    # views of the image shifted by up to ``reach`` pixels: NaN (no point) past the border
+    padded = np.pad(ranges, reach, constant_values=np.nan)
+    band = max(1, _CHUNK // max(w, 1))  # rows at a time (the temporaries stay in cache)
     with np.errstate(invalid="ignore"):
-        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            for a, b in FLYING_SPANS:
-                near_a = _shifted(r, -a * dr, -a * dc)
-                far_a = _shifted(r, -(a + 1) * dr, -(a + 1) * dc)
-                near_b = _shifted(r, b * dr, b * dc)
-                far_b = _shifted(r, (b + 1) * dr, (b + 1) * dc)
-                between = (((near_a < r - j) & (near_b > r + j))
-                           | ((near_a > r + j) & (near_b < r - j)))
-                smooth = (np.abs(near_a - far_a) <= j) & (np.abs(near_b - far_b) <= j)
-                neither = ((np.abs(r - near_a - a * (near_a - far_a)) > j)
-                           & (np.abs(r - near_b - b * (near_b - far_b)) > j))
-                fly |= between & smooth & neither
+        for y0 in range(0, h, band):
+            y1 = min(y0 + band, h)
+            r, j, out = ranges[y0:y1], jump[y0:y1], fly[y0:y1]
+            lo, hi = r - j, r + j
+            for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+                # the image shifted k pixels along the direction, each k once
+                at = {k: padded[reach + k * dr + y0:reach + k * dr + y1,
+                                reach + k * dc:reach + k * dc + w]
+                      for k in range(-reach, reach + 1) if k}
+                below = {k: at[k] < lo for k in at if abs(k) < reach}
+                above = {k: at[k] > hi for k in at if abs(k) < reach}
+                smooth = {k: np.abs(at[k] - at[k + (1 if k > 0 else -1)]) <= j
+                          for k in at if abs(k) < reach}
+                for a, b in FLYING_SPANS:
+                    near_a, far_a = at[-a], at[-(a + 1)]
+                    near_b, far_b = at[b], at[b + 1]
+                    between = (below[-a] & above[b]) | (above[-a] & below[b])
+                    between &= smooth[-a]
+                    between &= smooth[b]
+                    between &= np.abs(r - near_a - a * (near_a - far_a)) > j
+                    between &= np.abs(r - near_b - b * (near_b - far_b)) > j
+                    out |= between
     return fly
 
 
@@ -257,55 +283,78 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     ray[np.isinf(rng)] = (0.0, 0.0, 1.0)
     a, b = index[:, :-1].ravel(), index[:, 1:].ravel()
     both = (a >= 0) & (b >= 0)
-    angle = (float(np.median(np.linalg.norm(ray[a[both]] - ray[b[both]], axis=1)))
-             if both.any() else 0.0)
+    if both.any():
+        a, b = a[both], b[both]
+        gap = np.zeros(len(a))
+        for k in range(3):  # |ray_a - ray_b| as numpy.linalg.norm adds it: (x^2 + y^2) + z^2
+            d = ray[a, k] - ray[b, k]
+            d *= d
+            gap += d
+        angle = float(np.median(np.sqrt(gap, out=gap)))
+    else:
+        angle = 0.0
     footprint = np.where(np.isfinite(rng), rng, 0.0) * angle
-    # the moment images: 1, x, y, z and the products (centred on the frame's mean point)
+    # the moment images: 1, x, y, z and the products (centred on the frame's mean point),
+    # each point's row of them computed once
     centre = pts.mean(axis=0)
     c = pts - centre
     seen = np.isfinite(rng)  # points at the camera are no measurement: not in any patch
-
-    def moments(sel):
-        """The 10 moments (1, p, pp^T) of the points ``sel``: (len(sel), 10)."""
-        cs = c[sel]
-        out = np.empty((len(sel), 10))
-        out[:, 0] = 1.0
-        out[:, 1:4] = cs
-        for m, (p, q) in enumerate(_PAIRS):
-            out[:, 4 + m] = cs[:, p] * cs[:, q]
-        return out
+    mom = np.empty((n, 10))
+    mom[:, 0] = 1.0
+    mom[:, 1:4] = c
+    for m, (p, q) in enumerate(_PAIRS):
+        np.multiply(c[:, p], c[:, q], out=mom[:, 4 + m])
 
     def moment_table(sel, r0, c0, hh, ww):
         """Summed-area table of the moment images of the points ``sel`` over the window of the
         frame from (r0, c0), hh x ww pixels."""
-        chan = np.zeros((hh, ww, 10))
-        chan[rows[sel] - r0, cols[sel] - c0] = moments(sel)
-        return _summed_area(chan)
+        return _summed_area(mom[sel], rows[sel] - r0, cols[sel] - c0, (hh, ww))
 
-    def plane_of(sums, sel):
-        """Plane of each point of ``sel`` from its patch's moment sums: normal, mean point, RMS
-        residual along its ray, and whether the patch determines a plane."""
+    def plane_of(sel, sums_of):
+        """Plane of each point of ``sel`` from its patch's moment sums (``sums_of(i, j)``: those
+        of ``sel[i:j]``): normal, mean point, RMS residual along its ray, and whether the patch
+        determines a plane. Worked through in chunks of :data:`_CHUNK` points (the temporaries
+        stay in cache; each point's arithmetic is the same)."""
+        m = len(sel)
+        nrm, mu, res, fine = np.empty((m, 3)), np.empty((m, 3)), np.empty(m), np.empty(m, bool)
+        for i in range(0, m, _CHUNK):
+            j = min(i + _CHUNK, m)
+            nrm[i:j], mu[i:j], res[i:j], fine[i:j] = plane_chunk(sums_of(i, j), sel[i:j])
+        return nrm, mu, res, fine
+
+    def plane_chunk(sums, sel):
+        """:func:`plane_of` for one chunk, from its moment sums."""
         cnt = sums[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             mu = sums[:, 1:4] / cnt[:, None]
-            cov = np.empty((len(sel), 3, 3))
-            for m, (p, q) in enumerate(_PAIRS):
-                cov[:, p, q] = cov[:, q, p] = sums[:, 4 + m] / cnt - mu[:, p] * mu[:, q]
-        fine = (cnt >= 3) & np.isfinite(cov).all(axis=(1, 2))
-        cov[~fine] = np.eye(3)
-        small, middle, nrm = _smallest_eigen(cov)
-        fine &= (middle > 0) & np.isfinite(nrm).all(axis=1)
-        nrm[~fine] = -ray[sel][~fine]
-        cos = np.maximum(np.abs(np.einsum("ij,ij->i", nrm, ray[sel])), 0.1)
-        return nrm, mu, np.sqrt(np.maximum(small, 0.0)) / cos, fine
+            cov = [sums[:, 4 + m] / cnt - mu[:, p] * mu[:, q]
+                   for m, (p, q) in enumerate(_PAIRS)]
+        fine = cnt >= 3
+        for entry in cov:
+            fine &= np.isfinite(entry)
+        if not fine.all():
+            out = ~fine
+            for entry, (p, q) in zip(cov, _PAIRS):
+                entry[out] = 1.0 if p == q else 0.0
+        small, middle, nrm = _smallest_eigen(*cov)
+        ray_s = ray[sel]
+        fine &= middle > 0
+        fine &= np.isfinite(nrm).all(axis=1)
+        if not fine.all():
+            nrm[~fine] = -ray_s[~fine]
+        cos = np.maximum(np.abs(np.einsum("ij,ij->i", nrm, ray_s)), 0.1)
+        np.maximum(small, 0.0, out=small)
+        np.sqrt(small, out=small)
+        small /= cos
+        return nrm, mu, small, fine
 
     # the frame's noise in steps: the median over its points of the RMS residual of their
     # NOISE_RADIUS patches (quantisation alone: 1/sqrt(12) on a slope spanning steps, 0 on a
     # terrace; a patch across an edge is rarer than the median)
     sample = np.flatnonzero(seen)[::NOISE_SAMPLE]
     sat = moment_table(np.flatnonzero(seen), 0, 0, h, w)
-    _, _, res, fine = plane_of(_patch_sums(sat, rows[sample], cols[sample], NOISE_RADIUS),
-                               sample)
+    _, _, res, fine = plane_of(sample, lambda i, j: _patch_sums(
+        sat, rows[sample[i:j]], cols[sample[i:j]], NOISE_RADIUS))
     step_s = step[sample]
     noise = float(np.median(res[fine] / step_s[fine])) if fine.any() else 0.0
     sigma = step * max(noise, 1.0 / np.sqrt(12.0))
@@ -314,10 +363,15 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     # sigma / (sqrt(N) x RMS in-plane offset) for N = (2r+1)^2 pixels of footprint a
     radii = np.asarray(PATCH_RADII)
     rr = radii.astype(np.float64)
-    se = sigma[:, None] / ((2 * rr + 1) * np.maximum(footprint, 1e-300)[:, None]
-                           * np.sqrt(rr * (rr + 1) / 3.0))
-    ok = se <= DEPTH_SLOPE_ERROR
-    choice = np.where(ok.any(axis=1), ok.argmax(axis=1), len(radii) - 1)
+    width, spread = 2 * rr + 1, np.sqrt(rr * (rr + 1) / 3.0)
+    fp = np.maximum(footprint, 1e-300)
+    choice = np.full(n, len(radii) - 1)
+    undecided = np.arange(n)
+    for level in range(len(radii) - 1):
+        se = sigma[undecided] / (width[level] * fp[undecided] * spread[level])
+        ok = se <= DEPTH_SLOPE_ERROR
+        choice[undecided[ok]] = level
+        undecided = undecided[~ok]
     out_n = np.zeros((n, 3))
     mean = np.zeros((n, 3))
     stays = np.zeros(n, dtype=bool)
@@ -326,24 +380,28 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
 
     def fit_patches(sel, table, r0, c0):
         """From each point of ``sel``'s chosen patch down (moment sums from ``table``, whose
-        window starts at (r0, c0)): the first whose residual says one surface."""
-        todo = np.zeros(n, dtype=bool)
-        todo[sel] = True
+        window starts at (r0, c0)): the first whose residual says one surface. Each level
+        works on the points whose patch starts there and those a larger patch failed."""
+        by_level = sel[np.argsort(choice[sel], kind="stable")]
+        starts = np.searchsorted(choice[by_level], np.arange(len(radii) + 1))
+        left = by_level[:0]
         for level in range(len(radii) - 1, -1, -1):
-            at = np.flatnonzero(todo & (choice >= level))
+            fresh = by_level[starts[level]:starts[level + 1]]
+            at = np.concatenate([left, fresh]) if len(left) else fresh
             if not len(at):
                 continue
-            sums = _patch_sums(table, rows[at] - r0, cols[at] - c0, int(radii[level]))
-            nrm, mu, res, fine = plane_of(sums, at)
+            radius = int(radii[level])
+            nrm, mu, res, fine = plane_of(at, lambda i, j: _patch_sums(
+                table, rows[at[i:j]] - r0, cols[at[i:j]] - c0, radius))
             one = fine & (res <= limit[at])
             # the smallest patch is taken even when it spans two surfaces (the point stays)
-            good = one | ((level == 0) & fine)
+            good = one | fine if level == 0 else one
             take = at[good]
             out_n[take] = nrm[good]
             mean[take] = mu[good]
             final[take] = level
             stays[take] = ~one[good]
-            todo[take] = False
+            left = at[~good]
 
     if not edges:
         fit_patches(np.flatnonzero(seen), sat, 0, 0)
@@ -369,8 +427,8 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
         if len(small):
             sl = labels[small]
             sums = np.stack([np.bincount(sl, weights=col, minlength=len(size))
-                             for col in moments(small).T], axis=1)[sl]
-            nrm, mu, res, fine = plane_of(sums, small)
+                             for col in mom[small].T], axis=1)[sl]
+            nrm, mu, res, fine = plane_of(small, lambda i, j: sums[i:j])
             take = small[fine]
             out_n[take] = nrm[fine]
             mean[take] = mu[fine]
@@ -381,20 +439,21 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
         bounds = np.concatenate([[0], np.cumsum(size)])
         for seg in np.flatnonzero(size >= SMALL_SEGMENT):
             sel = order[bounds[seg]:bounds[seg + 1]]
-            r0, c0 = int(rows[sel].min()), int(cols[sel].min())
-            hh, ww = int(rows[sel].max()) + 1 - r0, int(cols[sel].max()) + 1 - c0
+            rs, cs = rows[sel], cols[sel]
+            r0, c0 = int(rs.min()), int(cs.min())
+            hh, ww = int(rs.max()) + 1 - r0, int(cs.max()) + 1 - c0
             fit_patches(sel, moment_table(sel, r0, c0, hh, ww), r0, c0)
     # normals toward the camera; each point onto its plane along its ray
     flip = np.einsum("ij,ij->i", out_n, rel) > 0
-    out_n[flip] *= -1
-    moved = pts.copy()
+    out_n *= np.where(flip, -1.0, 1.0)[:, None]
     dn = np.einsum("ij,ij->i", out_n, ray)  # < 0: facing the camera
     dist = np.einsum("ij,ij->i", out_n, c - mean)  # the point's height over its plane
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -dist / dn  # along the ray
     cap = np.maximum(MOVE_STEPS * step, PATCH_RESIDUAL_SIGMAS * sigma)
     move = (final >= 0) & ~stays & (np.abs(dn) > 0.1) & (np.abs(t) <= cap)
-    moved[move] += t[move, None] * ray[move]
+    # (t = 0 elsewhere: the point plus 0 x its ray is the point, to the bit)
+    moved = pts + np.where(move, t, 0.0)[:, None] * ray
     bad = final < 0
     out_n[bad] = -ray[bad]
     radius = np.where(final >= 0, radii[np.maximum(final, 0)], 0)

@@ -1121,3 +1121,75 @@ def test_real_range_grids_are_row_major_grids_of_the_scans(shared_data, conf):
     spacing = np.median(cKDTree(own).query(own, k=2)[0][:, 1])
     assert has.mean() > 0.5
     assert np.median(step) < 2.0 * spacing
+
+
+def _reference_depth_steps():
+    """The patch planes as first written (tests/depth_steps_reference.py), the oracle of the
+    restructured ones."""
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).with_name("depth_steps_reference.py")
+    spec = importlib.util.spec_from_file_location("depth_steps_reference", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _assert_patch_planes_equal(points, grid, step, viewpoint=(0.0, 0.0, 0.0)):
+    from pointviz.depth_steps import patch_planes
+
+    ref = _reference_depth_steps()
+    for edges in (True, False):
+        want = ref.patch_planes(points, grid, viewpoint, step, edges=edges)
+        got = patch_planes(points, grid, viewpoint, step, edges=edges)
+        for name, a, b in zip(("points", "normals", "radius", "flying"), want, got):
+            assert a.dtype == b.dtype and a.shape == b.shape, name
+            np.testing.assert_array_equal(b, a, err_msg=f"{name}, edges={edges}")
+
+
+@pytest.mark.parametrize("noise,mixed", [(0.05, True), (0.0, True), (0.05, False), (0.15, True)])
+def test_patch_planes_equal_the_reference_on_kinect_frames(noise, mixed):
+    # oracle: the first implementation (tests/depth_steps_reference.py); bit for bit
+    from pointviz.depth_steps import depth_steps
+
+    rng = np.random.default_rng(7)
+    pts, _ = kinect_frame(noise=noise, rng=rng, mixed=mixed)
+    rows, cols = np.divmod(np.arange(len(pts)), 320)
+    keep = np.isfinite(pts).all(axis=1)
+    pts, grid = pts[keep], np.column_stack([rows, cols])[keep].astype(np.int32)
+    step = depth_steps(pts[:, 2])
+    assert step is not None
+    _assert_patch_planes_equal(pts, grid, step)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_patch_planes_equal_the_reference_on_random_grids(seed):
+    # random organised frames: a few slanted planes at different depths (depth edges between
+    # them), quantised to steps that grow as z^2, with NaN holes (points left out of the grid)
+    # and zero-coded pixels (points at the camera); random noise levels and a shifted camera
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(40, 120), rng.integers(40, 160)
+    rows, cols = np.mgrid[0:h, 0:w]
+    f = rng.uniform(100, 300)
+    x, y = (cols - w / 2) / f, (rows - h / 2) / f
+    z = np.full((h, w), 3.0)
+    for _ in range(4):
+        r0, c0 = rng.integers(0, h), rng.integers(0, w)
+        box = (rows >= r0) & (rows < r0 + rng.integers(5, h)) & (cols >= c0) & (
+            cols < c0 + rng.integers(5, w))
+        z[box] = rng.uniform(1.0, 5.0) + rng.uniform(-0.5, 0.5) * x[box] + rng.uniform(
+            -0.5, 0.5) * y[box]
+    z += rng.normal(0, rng.uniform(0, 0.01), z.shape)
+    q = 0.003 * z * z
+    z = np.round(z / q) * q
+    pts = np.stack([x * z, y * z, z], axis=-1).reshape(-1, 3)
+    grid = np.column_stack([rows.ravel(), cols.ravel()]).astype(np.int32)
+    zero = rng.random(len(pts)) < 0.03
+    pts[zero] = 0.0
+    keep = rng.random(len(pts)) > 0.1
+    keep[-1] = True  # the frame's last row and column stay in the grid
+    pts, grid = pts[keep], grid[keep]
+    step = np.maximum(0.003 * pts[:, 2] ** 2, 1e-4)
+    viewpoint = rng.normal(0, 0.01, 3) * (seed > 1)
+    _assert_patch_planes_equal(pts + viewpoint, grid, step, viewpoint)
