@@ -96,35 +96,8 @@ def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
 
 def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray,
                  edges: bool = True):
-    """Planes over pixel patches sized to the depth steps (module docstring).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-        The frame's points (finite).
-    grid : (n, 2) int
-        Each point's row and column in the frame.
-    viewpoint : (3,) float
-        The camera's position.
-    step : (n,) float
-        Each point's depth step (:func:`depth_steps`).
-    edges : bool
-        Patches stop at depth edges and flying pixels are found (default); False: square
-        patches across edges, no point flying (the fit before depth edges were handled).
-
-    Returns
-    -------
-    points : (n, 3) float64
-        Each point moved along its ray onto its patch's plane (unmoved where it lies farther
-        than :data:`MOVE_STEPS` steps from it, where even its 3x3 patch spans two surfaces,
-        or where no patch determines a plane).
-    normals : (n, 3) float32
-        The patch planes' normals, facing the camera.
-    radius : (n,) int
-        Each point's patch half-width in pixels (0: no plane, the normal toward the camera).
-    flying : (n,) bool
-        The flying pixels (:func:`flying_pixels`), to be dropped.
-    """
+    """:func:`pointviz.depth_steps.patch_planes` as first written (same parameters and
+    results)."""
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
     vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)

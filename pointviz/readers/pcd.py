@@ -198,6 +198,12 @@ def depth_frame(path: Path, h: dict, points: np.ndarray, has_normals: bool) -> d
     return extra
 
 
+def _packed_colour(name: str, size: int, count: int) -> bool:
+    """Whether a PCD field is a packed colour: one 4-byte value (declared F or U) whose bits are
+    0xAARRGGBB, read as an unsigned integer."""
+    return name in ("rgb", "rgba") and size == 4 and count == 1
+
+
 def _decompressed_values(path: Path, h: dict, want: list[str]) -> np.ndarray:
     """The ``want`` columns (field names, ``name#k`` for the k-th value of a field) of a
     binary_compressed PCD file as float64, like the table reader's: its LZF block is expanded in
@@ -218,8 +224,8 @@ def _decompressed_values(path: Path, h: dict, want: list[str]) -> np.ndarray:
     for name, size, typ, count in zip(h["fields"], h["sizes"], h["types"], h["counts"]):
         block = n * size * count
         dtype = np.dtype(f"<{'f' if typ == 'F' else typ.lower()}{size}")
-        if name in ("rgb", "rgba") and size == 4 and count == 1:
-            dtype = np.dtype("<u4")  # a packed colour: the float's bits are 0xAARRGGBB
+        if _packed_colour(name, size, count):
+            dtype = np.dtype("<u4")
         for k in range(count):
             column = name if k == 0 else f"{name}#{k}"
             if column in want:
@@ -242,8 +248,8 @@ def read_pcd(path: Path, sample, rng) -> PointCloud:
         if scalar is None:  # 8-byte integers: not a coordinate type; read as raw bytes
             scalar = "u8"
             count *= size
-        if name in ("rgb", "rgba") and size == 4 and count == 1:
-            scalar = "u32"  # a packed colour: the float's bits are 0xAARRGGBB
+        if _packed_colour(name, size, count):
+            scalar = "u32"
         columns += [scalar] * count
         names += [name] + [f"{name}#{k}" for k in range(1, count)]
     want = [n for n in ("x", "y", "z") if n in names]
