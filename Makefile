@@ -49,6 +49,7 @@ sanitize: deps
 	$(SANITIZE_ENV) ./build/sanitize/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize/reader_tests
 	$(SANITIZE_ENV) ./build/sanitize/preprocess_tests
+	$(SANITIZE_ENV) ./build/sanitize/depth_tests
 	cmake -S tests/cpp -B build/sanitize-scalar -DCMAKE_BUILD_TYPE=Debug -DPOINTVIZ_SANITIZE=ON -DPOINTVIZ_SCALAR=ON >/dev/null
 	cmake --build build/sanitize-scalar -j2
 	$(SANITIZE_ENV) ./build/sanitize-scalar/core_tests
@@ -56,6 +57,7 @@ sanitize: deps
 	$(SANITIZE_ENV) ./build/sanitize-scalar/kdtree_tests
 	$(SANITIZE_ENV) ./build/sanitize-scalar/reader_tests
 	$(SANITIZE_ENV) ./build/sanitize-scalar/preprocess_tests
+	$(SANITIZE_ENV) ./build/sanitize-scalar/depth_tests
 
 bench: build
 	$(PY) benchmarks/bench_core.py

@@ -1,8 +1,11 @@
-"""Depth-camera frames: the patch planes' speed (benchmarks/README.md, 2026-11-25).
+"""Depth-camera frames: the patch planes' speed (benchmarks/README.md, 2026-11-25: "the patch
+planes' speed" and "the depth steps in the core").
 
-Times ``pointviz.depth_steps.patch_planes`` on PCL's depth-camera frames against the first
-implementation (``tests/depth_steps_reference.py``, the tests' oracle), alternated in one process,
-and checks that the two give the same points, normals, radii and flying pixels to the bit.
+Times ``pointviz.depth_steps.patch_planes`` (the C++ core's) on PCL's depth-camera frames against
+the numpy version (``patch_planes_numpy``; ``--numpy-vs-reference``: the numpy version against the
+first implementation, ``tests/depth_steps_reference.py``), alternated in one process, and checks
+that the two give the same radii and flying pixels and points and normals within the tests'
+tolerance (printing the largest differences; the numpy pair: to the bit).
 
 Examples
 --------
@@ -48,25 +51,37 @@ def main(argv=None):
     ap.add_argument("data", help="folder of PCL's test frames")
     ap.add_argument("--frames", nargs="+", default=FRAMES)
     ap.add_argument("--repeat", type=int, default=7, help="alternated pairs per frame")
+    ap.add_argument("--numpy-vs-reference", action="store_true",
+                    help="the numpy version against the first implementation (to the bit)")
     args = ap.parse_args(argv)
+    if args.numpy_vs_reference:
+        pair = (("reference", reference.patch_planes), ("numpy", depth_steps.patch_planes_numpy))
+    else:
+        pair = (("numpy", depth_steps.patch_planes_numpy), ("core", depth_steps.patch_planes))
+    (old, old_fn), (new, new_fn) = pair
     for name in args.frames:
         call = frame_args(Path(args.data) / f"{name}.pcd")
         for edges in (True, False):
-            want = reference.patch_planes(*call, edges=edges)
-            got = depth_steps.patch_planes(*call, edges=edges)
+            want = old_fn(*call, edges=edges)
+            got = new_fn(*call, edges=edges)
             same = all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(want, got))
-            times = {"reference": [], "now": []}
+            dp = float(np.abs(got[0] - want[0]).max())
+            dn = float(np.abs(got[1] - want[1]).max())
+            dr = int((got[2] != want[2]).sum())
+            df = int((got[3] != want[3]).sum())
+            times = {old: [], new: []}
             for i in range(args.repeat):
-                order = (("reference", reference), ("now", depth_steps))
-                for label, module in order if i % 2 else order[::-1]:
+                order = ((old, old_fn), (new, new_fn))
+                for label, fn in order if i % 2 else order[::-1]:
                     t = time.perf_counter()
-                    module.patch_planes(*call, edges=edges)
+                    fn(*call, edges=edges)
                     times[label].append(time.perf_counter() - t)
-            ref, now = (statistics.median(times[k]) for k in ("reference", "now"))
-            print(f"{name[:16]:16s} edges={edges!s:5s} bit-identical={same} reference "
-                  f"{ref:.3f} s, now {now:.3f} s (medians of {args.repeat}; min "
-                  f"{min(times['reference']):.3f} / {min(times['now']):.3f}): {ref / now:.2f}x  "
-                  f"load {os.getloadavg()[0]:.2f}", flush=True)
+            a, b = (statistics.median(times[k]) for k in (old, new))
+            print(f"{name[:16]:16s} edges={edges!s:5s} bit-identical={same} max|dpoint| {dp:.1e} "
+                  f"max|dnormal| {dn:.1e} radii differ {dr} flying differ {df}; {old} {a:.3f} s, "
+                  f"{new} {b:.3f} s (medians of {args.repeat}; min {min(times[old]):.3f} / "
+                  f"{min(times[new]):.3f}): {a / b:.2f}x  load {os.getloadavg()[0]:.2f}",
+                  flush=True)
 
 
 if __name__ == "__main__":

@@ -237,8 +237,33 @@ def depth_segments(ranges: np.ndarray, jump: np.ndarray, valid: np.ndarray) -> n
 
 
 def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray,
-                 edges: bool = True):
-    """Planes over pixel patches sized to the depth steps (module docstring).
+                 edges: bool = True, threads: int = 0):
+    """Planes over pixel patches sized to the depth steps (module docstring), in the C++ core
+    (``ext/src/preprocess_depth.cpp``: the per-point table reads, moments, eigen solve and patch
+    growth fused and threaded; depth edges with the core's union-find, so scipy is not
+    imported). Same parameters and results as :func:`patch_planes_numpy`, whose arithmetic it
+    follows in the same order: equal to it up to the rounding of arccos / cos (libm's against
+    numpy's). ``threads``: 0, all cores.
+    """
+    from . import _core
+
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    cells = np.ascontiguousarray(grid, dtype=np.int32).reshape(-1, 2)
+    vp = [float(v) for v in np.asarray(viewpoint, dtype=np.float64).reshape(3)]
+    steps = np.ascontiguousarray(step, dtype=np.float64).reshape(-1)
+    if not len(pts):
+        raise ValueError("patch_planes: no points")
+    moved, normals, radius, flying, _ = _core.depth_patch_planes(
+        pts, cells, vp, steps, bool(edges), DEPTH_SLOPE_ERROR, NOISE_RADIUS, NOISE_SAMPLE,
+        list(PATCH_RADII), PATCH_RESIDUAL_STEPS, PATCH_RESIDUAL_SIGMAS, MOVE_STEPS, EDGE_STEPS,
+        EDGE_SIGMAS, EDGE_FOOTPRINTS, SMALL_SEGMENT, threads=int(threads))
+    return moved, normals, radius, flying.view(bool)
+
+
+def patch_planes_numpy(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray,
+                       edges: bool = True):
+    """Planes over pixel patches sized to the depth steps (module docstring), in numpy: the
+    oracle of :func:`patch_planes` (the core's), and the reference for its arithmetic.
 
     Parameters
     ----------

@@ -1,6 +1,7 @@
 """The test oracle for :mod:`pointviz.depth_steps`: its patch planes as first written (1d4f9d4,
 before they were restructured for speed), kept unchanged so that ``tests/test_io.py`` can compare
-the two bit for bit. The constants, :func:`depth_steps` and :func:`depth_segments` (not
+the numpy version (``patch_planes_numpy``) with it bit for bit and the core's (``patch_planes``)
+within a float tolerance. The constants, :func:`depth_steps` and :func:`depth_segments` (not
 restructured) come from the package. Not imported by the package."""
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ def flying_pixels(ranges: np.ndarray, jump: np.ndarray) -> np.ndarray:
 
 def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarray,
                  edges: bool = True):
-    """:func:`pointviz.depth_steps.patch_planes` as first written (same parameters and
+    """:func:`pointviz.depth_steps.patch_planes_numpy` as first written (same parameters and
     results)."""
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)

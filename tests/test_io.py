@@ -1137,20 +1137,36 @@ def _reference_depth_steps():
 
 
 def _assert_patch_planes_equal(points, grid, step, viewpoint=(0.0, 0.0, 0.0)):
-    from pointviz.depth_steps import patch_planes
+    """The numpy patch planes equal the first implementation bit for bit; the core's equal it
+    within the rounding of arccos / cos (libm's against numpy's): points within 1e-12 (relative
+    to the frame's extent; PCL's frames: at most 2e-15 m), normals (float32) within 1e-6, radii
+    and flying pixels the same (a different radius would need a patch residual within ~1e-15
+    of its limit)."""
+    from pointviz.depth_steps import patch_planes, patch_planes_numpy
 
     ref = _reference_depth_steps()
+    scale = max(1.0, float(np.abs(points).max()))
     for edges in (True, False):
         want = ref.patch_planes(points, grid, viewpoint, step, edges=edges)
-        got = patch_planes(points, grid, viewpoint, step, edges=edges)
-        for name, a, b in zip(("points", "normals", "radius", "flying"), want, got):
-            assert a.dtype == b.dtype and a.shape == b.shape, name
-            np.testing.assert_array_equal(b, a, err_msg=f"{name}, edges={edges}")
+        now = patch_planes_numpy(points, grid, viewpoint, step, edges=edges)
+        core = patch_planes(points, grid, viewpoint, step, edges=edges)
+        for name, a, b, c in zip(("points", "normals", "radius", "flying"), want, now, core):
+            assert a.dtype == b.dtype == c.dtype and a.shape == b.shape == c.shape, name
+            np.testing.assert_array_equal(b, a, err_msg=f"{name}, edges={edges}, numpy")
+            if name == "points":
+                np.testing.assert_allclose(c, a, rtol=0, atol=1e-12 * scale,
+                                           err_msg=f"{name}, edges={edges}, core")
+            elif name == "normals":
+                np.testing.assert_allclose(c, a, rtol=0, atol=1e-6,
+                                           err_msg=f"{name}, edges={edges}, core")
+            else:
+                np.testing.assert_array_equal(c, a, err_msg=f"{name}, edges={edges}, core")
 
 
 @pytest.mark.parametrize("noise,mixed", [(0.05, True), (0.0, True), (0.05, False), (0.15, True)])
 def test_patch_planes_equal_the_reference_on_kinect_frames(noise, mixed):
-    # oracle: the first implementation (tests/depth_steps_reference.py); bit for bit
+    # oracle: the first implementation (tests/depth_steps_reference.py); the numpy version bit
+    # for bit, the core within a float tolerance (_assert_patch_planes_equal)
     from pointviz.depth_steps import depth_steps
 
     rng = np.random.default_rng(7)
@@ -1193,3 +1209,62 @@ def test_patch_planes_equal_the_reference_on_random_grids(seed):
     step = np.maximum(0.003 * pts[:, 2] ** 2, 1e-4)
     viewpoint = rng.normal(0, 0.01, 3) * (seed > 1)
     _assert_patch_planes_equal(pts + viewpoint, grid, step, viewpoint)
+
+
+def _bad_frames():
+    """Organised frames the core must handle as the numpy version does: one row, one column,
+    zero-coded pixels (points at the camera), depths beyond the doubles' squares, two depth
+    levels only, two points on one pixel, a frame of NaN-free points whose patches are all
+    degenerate (every point on one ray's line)."""
+    rng = np.random.default_rng(11)
+    frames = {}
+
+    def grid_frame(h, w, z):
+        rows, cols = np.mgrid[0:h, 0:w]
+        pts = np.stack([(cols - w / 2) / 200 * z, (rows - h / 2) / 200 * z, z], -1).reshape(-1, 3)
+        return pts, np.column_stack([rows.ravel(), cols.ravel()]).astype(np.int32)
+
+    z = np.round(rng.uniform(2, 3, (1, 300)) / 0.01) * 0.01
+    frames["one row"] = grid_frame(1, 300, z)
+    frames["one column"] = grid_frame(300, 1, np.round(rng.uniform(2, 3, (300, 1)) / 0.01) * 0.01)
+    pts, grid = grid_frame(40, 50, np.round(rng.uniform(2, 3, (40, 50)) / 0.01) * 0.01)
+    pts[rng.random(len(pts)) < 0.3] = 0.0
+    frames["zero-coded"] = pts, grid
+    pts, grid = grid_frame(30, 40, np.full((30, 40), 2.0))
+    pts[::7] *= 1e160  # squares overflow: these are no measurement
+    frames["huge"] = pts, grid
+    zz = np.where(np.arange(60)[None, :] < 30, 1.0, 1.5) * np.ones((40, 1))
+    frames["two levels"] = grid_frame(40, 60, zz)
+    pts, grid = grid_frame(30, 30, np.round(rng.uniform(2, 3, (30, 30)) / 0.01) * 0.01)
+    grid[5] = grid[6]  # two points on one pixel
+    frames["shared pixel"] = pts, grid
+    ray = np.array([0.1, 0.2, 1.0])
+    pts = np.outer(np.round(rng.uniform(1, 3, 400) / 0.01) * 0.01, ray)
+    frames["one line"] = pts, np.column_stack(np.divmod(np.arange(400), 20)).astype(np.int32)
+    return frames
+
+
+@pytest.mark.parametrize("name", ["one row", "one column", "zero-coded", "huge", "two levels",
+                                  "shared pixel", "one line"])
+def test_patch_planes_core_handles_bad_frames_as_numpy_does(name):
+    # oracle: the numpy version (patch_planes_numpy), the same tolerance as on the frames above
+    from pointviz.depth_steps import patch_planes, patch_planes_numpy
+
+    pts, grid = _bad_frames()[name]
+    step = np.maximum(0.01 * np.abs(pts[:, 2]), 1e-3)
+    for edges in (True, False):
+        with np.errstate(all="ignore"):
+            want = patch_planes_numpy(pts, grid, (0.0, 0.0, 0.0), step, edges=edges)
+        got = patch_planes(pts, grid, (0.0, 0.0, 0.0), step, edges=edges)
+        finite = np.isfinite(pts).all(axis=1) & (np.abs(pts).max(axis=1) < 1e100)
+        scale = max(1.0, float(np.abs(pts[finite]).max()))
+        np.testing.assert_allclose(got[0], want[0], rtol=1e-12, atol=1e-12 * scale)
+        # a plane that holds the point's ray (one column: every point on one plane through
+        # the camera) faces neither way: its normal's sign is rounding in both versions
+        with np.errstate(all="ignore"):
+            ray = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+        edge_on = np.abs(np.einsum("ij,ij->i", want[1].astype(np.float64), ray)) < 1e-9
+        flip = np.where(edge_on & (np.einsum("ij,ij->i", got[1], want[1]) < 0), -1.0, 1.0)
+        np.testing.assert_allclose(got[1] * flip[:, None], want[1], rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(got[2], want[2])
+        np.testing.assert_array_equal(got[3], want[3])

@@ -23,6 +23,7 @@
 #include <thread>
 
 #include "pointviz/cast.h"
+#include "pointviz/depth_planes.h"
 #include "pointviz/dispatch.h"
 #include "pointviz/kdtree.h"
 #include "pointviz/preprocess.h"
@@ -918,4 +919,52 @@ NB_MODULE(_core, m) {
     }, "points"_a, "scan_index"_a.none(), "k"_a, "reach"_a = StrayOptions{}.reach,
        "min_points"_a = StrayOptions{}.min_points, "fraction"_a = StrayOptions{}.fraction,
        "threads"_a = 0);
+
+    m.def("depth_patch_planes", [](CArray<double> points, CArray<int32_t> grid,
+                                   std::array<double, 3> viewpoint, CArray<double> step,
+                                   bool edges, double slope_error, int noise_radius,
+                                   int noise_sample, std::vector<int> radii,
+                                   double residual_steps, double residual_sigmas,
+                                   double move_steps, double edge_steps, double edge_sigmas,
+                                   double edge_footprints, uint32_t small_segment, int threads) {
+        size_t n = points.shape(0);
+        check_rows("points", points.ndim(), n, points.ndim() > 1 ? points.shape(1) : 0, n, 3);
+        check_rows("grid", grid.ndim(), grid.shape(0), grid.ndim() > 1 ? grid.shape(1) : 0, n, 2);
+        check_rows("step", step.ndim(), step.shape(0), 0, n, 0);
+        if (n == 0) throw nb::value_error("points: none");
+        if (radii.empty() || radii.front() < 0 || !std::is_sorted(radii.begin(), radii.end()))
+            throw nb::value_error("radii: expected ascending half-widths >= 0");
+        const int32_t *g = grid.data();
+        for (size_t i = 0; i < 2 * n; ++i)
+            if (g[i] < 0) throw nb::value_error("grid: negative row or column");
+        DepthPlaneOptions o;
+        o.edges = edges;
+        o.slope_error = slope_error;
+        o.noise_radius = noise_radius;
+        o.noise_sample = noise_sample;
+        o.radii = radii;
+        o.residual_steps = residual_steps;
+        o.residual_sigmas = residual_sigmas;
+        o.move_steps = move_steps;
+        o.edge_steps = edge_steps;
+        o.edge_sigmas = edge_sigmas;
+        o.edge_footprints = edge_footprints;
+        o.small_segment = small_segment;
+        o.threads = threads;
+        const double vp[3] = {viewpoint[0], viewpoint[1], viewpoint[2]};
+        DepthPlaneResult r = run_step([&](Progress &pr) {
+            return depth_patch_planes(points.data(), n, g, vp, step.data(), o, &pr);
+        });
+        nb::dict info;
+        info["noise"] = r.noise;
+        info["angle"] = r.angle;
+        info["segments"] = r.segments;
+        return nb::make_tuple(to_array(r.points, {n, 3}), to_array(r.normals, {n, 3}),
+                              to_array(r.radius, {n}), to_array(r.flying, {n}), info);
+    }, "points"_a, "grid"_a, "viewpoint"_a, "step"_a, "edges"_a, "slope_error"_a,
+       "noise_radius"_a, "noise_sample"_a, "radii"_a, "residual_steps"_a, "residual_sigmas"_a,
+       "move_steps"_a, "edge_steps"_a, "edge_sigmas"_a, "edge_footprints"_a, "small_segment"_a,
+       "threads"_a = 0,
+       "(points (n, 3) float64, normals (n, 3) float32, radius (n,) int64, flying (n,) uint8, "
+       "info): planes over pixel patches of a depth-camera frame (depth_planes.h)");
 }
