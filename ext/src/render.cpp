@@ -6,11 +6,13 @@
 #include "pointviz/render.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <ctime>
 
 #include "pointviz/parallel.h"
+#include "pointviz/shading_lanes.h"
 #include "pointviz/shading_math.h"
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(POINTVIZ_NO_SIMD)
@@ -718,6 +720,127 @@ private:
         return (top * e + scene_.sky.below * (1.f - e)) * scene_.sky.ambient;
     }
 
+    /// The ground's samples of this bounce, before they are shaded in order (simd_lanes):
+    /// their fade (camera rays), and for those the fade leaves visible each directional light's
+    /// direction, ndl and specular lobe and their sky-visibility directions, computed in lanes
+    /// (shading_lanes.h) with trace_bounce's scalar expressions; trace_bounce then reads them
+    /// in the same order it meets the samples. The random numbers stay scalar (64-bit hashes).
+    void shade_ground_lanes(int bounce, const std::vector<Nearest> &near, int x0, int y0, int tw) {
+        GroundLanes &g = gl_;
+        const Sky &sky_model = scene_.sky;
+        const Material &m = scene_.ground_material;
+        const bool fading = bounce == 0 && sky_model.ground_fade > 0.f;
+        for (auto *v : {&g.ox, &g.oy, &g.oz, &g.dx, &g.dy, &g.dz, &g.t}) v->clear();
+        for (size_t i = 0; i < rays_.size(); ++i) {
+            if (near[i].object != -2) continue;
+            const Ray &r = rays_[i].ray;
+            g.ox.push_back(r.o.x), g.oy.push_back(r.o.y), g.oz.push_back(r.o.z);
+            g.dx.push_back(r.d.x), g.dy.push_back(r.d.y), g.dz.push_back(r.d.z);
+            g.t.push_back(near[i].hit.t);
+        }
+        const size_t count = g.t.size();
+        g.fade.resize(count);
+        if (fading)
+            lanes::over_lanes(count, true, [&](size_t i, auto lane) {
+                using L = decltype(lane);
+                lanes::ground_fade(L::load(&g.ox[i]), L::load(&g.oy[i]), L::load(&g.oz[i]),
+                                   L::load(&g.dx[i]), L::load(&g.dy[i]), L::load(&g.dz[i]),
+                                   L::load(&g.t[i]), scene_.ground_point, scene_.ground_normal,
+                                   sky_model.ground_fade, fade_end2_)
+                    .store(&g.fade[i]);
+            });
+        // the samples the fade leaves visible
+        const size_t nl = scene_.lights.size();
+        for (auto *v : {&g.nx, &g.ny, &g.nz, &g.sdx, &g.sdy, &g.sdz}) v->clear();
+        g.within.clear();
+        g.light.resize(nl);
+        for (auto &lv : g.light) for (auto &v : lv) v.clear();
+        for (auto &v : g.occ) v.clear();
+        const uint32_t dim0 = uint32_t(bounce) * kDimsPerBounce;
+        const int n_occ = sky_model.occlusion_distance > 0.f && set_.occlusion_rays > 0
+                              ? (bounce == 0 ? set_.occlusion_rays : 1) : 0;
+        size_t k = 0;
+        for (size_t i = 0; i < rays_.size(); ++i) {
+            if (near[i].object != -2) continue;
+            if (fading && g.fade[k++] >= 1.f) continue;
+            const PathRay &pr = rays_[i];
+            const Ray &r = pr.ray;
+            const SurfaceHit &h = near[i].hit;
+            const Vec3 n = dot(h.n, r.d) > 0.f ? -h.n : h.n;
+            g.nx.push_back(n.x), g.ny.push_back(n.y), g.nz.push_back(n.z);
+            g.sdx.push_back(r.d.x), g.sdy.push_back(r.d.y), g.sdz.push_back(r.d.z);
+            const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
+            for (size_t li = 0; li < nl; ++li) {
+                const Light &L = scene_.lights[li];
+                if (L.type != LightType::Directional || !(L.angle > 0.f)) continue;
+                float u1, u2;
+                const uint32_t ld = uint32_t(std::min<size_t>(li, kMaxStratifiedLights));
+                r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
+                g.light[li][0].push_back(u1);
+                g.light[li][1].push_back(u2);
+            }
+            uint8_t within = 0;
+            if (n_occ > 0) {
+                const Vec3 p = r.o + r.d * h.t;
+                const float scale = std::max(
+                    {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
+                const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
+                const float tmin = set_.offsets.tmin * scale;
+                within = object_within(origin, std::max(tmin, sky_model.occlusion_distance));
+                if (within) {
+                    const Basis &basis = basis_.of(n);
+                    for (int j = 0; j < n_occ; ++j) {
+                        float u1, u2;
+                        r2_point(set_.seed, gp, pr.sample * uint32_t(n_occ) + uint32_t(j),
+                                 dim0 + kDimOcclusion, u1, u2);
+                        const float in[11] = {n.x, n.y, n.z, basis.t.x, basis.t.y, basis.t.z,
+                                              basis.b.x, basis.b.y, basis.b.z, u1, u2};
+                        for (int c = 0; c < 11; ++c) g.occ[c].push_back(in[c]);
+                    }
+                }
+            }
+            g.within.push_back(within);
+        }
+        const size_t shaded = g.nx.size();
+        // each directional light's direction and terms
+        for (size_t li = 0; li < nl; ++li) {
+            const Light &L = scene_.lights[li];
+            if (L.type != LightType::Directional) continue;
+            auto &lv = g.light[li];
+            for (int c = 2; c < 7; ++c) lv[c].resize(shaded);
+            const bool soft = L.angle > 0.f;
+            const Cone &cone = light_cones_[li];
+            lanes::over_lanes(shaded, true, [&](size_t i, auto lane) {
+                using L4 = decltype(lane);
+                L4 lx, ly, lz;
+                if (soft) {
+                    lanes::cone_direction(cone.axis, cone.t, cone.b, cone.cos_max, L4::load(&lv[0][i]),
+                                          L4::load(&lv[1][i]), lx, ly, lz);
+                } else {
+                    lx = L4::splat(L.direction.x), ly = L4::splat(L.direction.y), lz = L4::splat(L.direction.z);
+                }
+                L4 ndl, spec;
+                lanes::light_terms(L4::load(&g.nx[i]), L4::load(&g.ny[i]), L4::load(&g.nz[i]), lx, ly, lz,
+                                   L4::load(&g.sdx[i]), L4::load(&g.sdy[i]), L4::load(&g.sdz[i]),
+                                   m.specular, m.shininess, ndl, spec);
+                lx.store(&lv[2][i]), ly.store(&lv[3][i]), lz.store(&lv[4][i]);
+                ndl.store(&lv[5][i]), spec.store(&lv[6][i]);
+            });
+        }
+        // the sky-visibility rays' directions
+        const size_t occ = g.occ[0].size();
+        for (int c = 11; c < 14; ++c) g.occ[c].resize(occ);
+        lanes::over_lanes(occ, true, [&](size_t i, auto lane) {
+            using L = decltype(lane);
+            L x, y, z;
+            lanes::cosine_direction(L::load(&g.occ[0][i]), L::load(&g.occ[1][i]), L::load(&g.occ[2][i]),
+                                    L::load(&g.occ[3][i]), L::load(&g.occ[4][i]), L::load(&g.occ[5][i]),
+                                    L::load(&g.occ[6][i]), L::load(&g.occ[7][i]), L::load(&g.occ[8][i]),
+                                    L::load(&g.occ[9][i]), L::load(&g.occ[10][i]), x, y, z);
+            x.store(&g.occ[11][i]), y.store(&g.occ[12][i]), z.store(&g.occ[13][i]);
+        });
+    }
+
     void trace_bounce(int bounce, int x0, int y0, int tw) {
         std::vector<Nearest> &near = near_;
         const uint64_t traced = intersect(near, bounce == 0 ? RayKind::Camera : RayKind::Reflection);
@@ -726,6 +849,9 @@ private:
         shadows_.clear();
         next_.clear();
         const Sky &sky_model = scene_.sky;
+        const bool lanes_on = set_.simd_lanes && scene_.ground;
+        if (lanes_on) shade_ground_lanes(bounce, near, x0, y0, tw);
+        size_t gk = 0, sk = 0, ok = 0;   // the next ground sample, shaded ground sample, sky ray in gl_
         for (size_t i = 0; i < rays_.size(); ++i) {
             const PathRay &pr = rays_[i];
             const Nearest &nh = near[i];
@@ -737,6 +863,8 @@ private:
                 continue;
             }
             const SurfaceHit &h = nh.hit;
+            const bool lane = lanes_on && nh.object == -2;   // its analytic terms are in gl_
+            const size_t gslot = lane ? gk++ : 0;
             Vec3 p = r.o + r.d * h.t;
             Vec3 n = dot(h.n, r.d) > 0.f ? -h.n : h.n;
             Vec3 weight = pr.weight;
@@ -747,12 +875,16 @@ private:
                 if (nh.object >= 0) object_hits_[pr.pixel] += 1;
                 if (nh.object == -2 && sky_model.ground_fade > 0.f) {
                     // studio backdrop: the far ground blends into the background
-                    Vec3 g = p - scene_.ground_point;
-                    const float d2 = length2(g - scene_.ground_normal * dot(g, scene_.ground_normal));
                     float f = 1.f;   // beyond the fade's end (most of a far view's pixels): exactly 1
-                    if (!(d2 > fade_end2_)) {
-                        f = std::clamp(std::sqrt(d2) / sky_model.ground_fade - 1.f, 0.f, 1.f);
-                        f = f * f * (3.f - 2.f * f);
+                    if (lane) {
+                        f = gl_.fade[gslot];
+                    } else {
+                        Vec3 g = p - scene_.ground_point;
+                        const float d2 = length2(g - scene_.ground_normal * dot(g, scene_.ground_normal));
+                        if (!(d2 > fade_end2_)) {
+                            f = std::clamp(std::sqrt(d2) / sky_model.ground_fade - 1.f, 0.f, 1.f);
+                            f = f * f * (3.f - 2.f * f);
+                        }
                     }
                     Vec3 bg = sky_model.background_is_sky ? sky(r.d) : sky_model.background;
                     color_[pr.pixel] += weight * bg * f;
@@ -761,6 +893,7 @@ private:
                     if (f >= 1.f) continue;
                 }
             }
+            const size_t sslot = lane ? sk++ : 0;
             const Material &m = nh.object == -2 ? scene_.ground_material
                                                 : scene_.objects[size_t(nh.object)].material;
             Vec3 albedo = m.base_color;
@@ -789,7 +922,8 @@ private:
                                   ? (bounce == 0 ? set_.occlusion_rays : 1) : 0;
             if (n_occ == 0) {
                 color_[pr.pixel] += ambient_add;
-            } else if (!object_within(origin, std::max(tmin, sky_model.occlusion_distance))) {
+            } else if (!(lane ? gl_.within[sslot] != 0
+                              : object_within(origin, std::max(tmin, sky_model.occlusion_distance)))) {
                 // no object within the rays' length: none is blocked, whatever its direction
                 for (int k = 0; k < n_occ; ++k) {
                     ShadowRay &sr = shadows_.emplace_back();
@@ -799,16 +933,22 @@ private:
                     sr.kind = RayKind::Sky;
                     sr.may_hit = false;
                 }
-            } else {
-                const Basis &basis = basis_.of(n);
-                const Vec3 nt = basis.t, nb = basis.b;
+            } else {   // the directions from the lanes (ground samples), or sampled here
+                const Basis *basis = lane ? nullptr : &basis_.of(n);
                 for (int k = 0; k < n_occ; ++k) {
-                    float u1, u2;
-                    r2_point(set_.seed, gp, pr.sample * uint32_t(n_occ) + uint32_t(k),
-                             dim0 + kDimOcclusion, u1, u2);
+                    Vec3 d;
+                    if (lane) {
+                        d = {gl_.occ[11][ok], gl_.occ[12][ok], gl_.occ[13][ok]};
+                        ++ok;
+                    } else {
+                        float u1, u2;
+                        r2_point(set_.seed, gp, pr.sample * uint32_t(n_occ) + uint32_t(k),
+                                 dim0 + kDimOcclusion, u1, u2);
+                        d = sample_cosine(n, basis->t, basis->b, u1, u2);
+                    }
                     ShadowRay &sr = shadows_.emplace_back();
                     sr.ray.o = origin;
-                    sr.ray.d = sample_cosine(n, nt, nb, u1, u2);
+                    sr.ray.d = d;
                     sr.ray.tmin = tmin;
                     sr.ray.tmax = std::max(tmin, sky_model.occlusion_distance);
                     sr.ray.width0 = r.footprint(h.t);
@@ -821,36 +961,46 @@ private:
             }
             for (size_t li = 0; li < scene_.lights.size(); ++li) {
                 const Light &L = scene_.lights[li];
-                float u1 = 0.f, u2 = 0.f;   // a point on the light (not needed by a hard one)
-                const bool hard = L.type == LightType::Directional ? !(L.angle > 0.f)
-                                  : L.type == LightType::Point && !(L.radius > 0.f);
-                uint32_t ld = uint32_t(std::min<size_t>(li, kMaxStratifiedLights));
-                if (!hard) r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
                 Vec3 ldir, radiance = L.color;
-                float dist = kInf;
-                if (L.type == LightType::Directional) {
-                    ldir = L.angle > 0.f ? sample_cone(light_cones_[li], u1, u2) : L.direction;
+                float dist = kInf, ndl, spec = 0.f;
+                const bool from_lanes = lane && L.type == LightType::Directional;
+                if (from_lanes) {   // direction, ndl and lobe from the lanes
+                    const auto &lv = gl_.light[li];
+                    ldir = {lv[2][sslot], lv[3][sslot], lv[4][sslot]};
+                    ndl = lv[5][sslot];
+                    spec = lv[6][sslot];
                 } else {
-                    Vec3 q = L.position;
-                    float cos_light = 1.f;
-                    if (L.type == LightType::Area) {
-                        q = q + L.edge_u * u1 + L.edge_v * u2;
-                        Vec3 ln = normalize(cross(L.edge_u, L.edge_v));
-                        Vec3 dq = normalize(q - p);
-                        cos_light = std::fabs(dot(ln, dq));
-                    } else if (L.radius > 0.f) {
-                        q = q + sample_cone(normalize(p - q), 0.5f * kPi, u1, u2) * L.radius;
+                    float u1 = 0.f, u2 = 0.f;   // a point on the light (not needed by a hard one)
+                    const bool hard = L.type == LightType::Directional ? !(L.angle > 0.f)
+                                      : L.type == LightType::Point && !(L.radius > 0.f);
+                    uint32_t ld = uint32_t(std::min<size_t>(li, kMaxStratifiedLights));
+                    if (!hard) r2_point(set_.seed, gp, pr.sample, dim0 + kDimLights + 2 * ld, u1, u2);
+                    if (L.type == LightType::Directional) {
+                        ldir = L.angle > 0.f ? sample_cone(light_cones_[li], u1, u2) : L.direction;
+                    } else {
+                        Vec3 q = L.position;
+                        float cos_light = 1.f;
+                        if (L.type == LightType::Area) {
+                            q = q + L.edge_u * u1 + L.edge_v * u2;
+                            Vec3 ln = normalize(cross(L.edge_u, L.edge_v));
+                            Vec3 dq = normalize(q - p);
+                            cos_light = std::fabs(dot(ln, dq));
+                        } else if (L.radius > 0.f) {
+                            q = q + sample_cone(normalize(p - q), 0.5f * kPi, u1, u2) * L.radius;
+                        }
+                        Vec3 dq = q - p;
+                        dist = length(dq);
+                        if (!(dist > 0.f)) continue;
+                        ldir = dq / dist;
+                        radiance = L.color * (cos_light / (dist * dist));
                     }
-                    Vec3 dq = q - p;
-                    dist = length(dq);
-                    if (!(dist > 0.f)) continue;
-                    ldir = dq / dist;
-                    radiance = L.color * (cos_light / (dist * dist));
+                    ndl = dot(n, ldir);
                 }
-                float ndl = dot(n, ldir);
                 if (ndl <= 0.f) continue;
-                Vec3 hv = normalize(ldir - r.d);
-                float spec = m.specular * lobe_pow(std::max(0.f, dot(n, hv)), m.shininess);
+                if (!from_lanes) {
+                    Vec3 hv = normalize(ldir - r.d);
+                    spec = m.specular * lobe_pow(std::max(0.f, dot(n, hv)), m.shininess);
+                }
                 Vec3 add = weight * radiance * (albedo * (keep * m.diffuse * ndl) + Vec3{1, 1, 1} * (spec * ndl));
                 if (!set_.shadows || !L.cast_shadows) {
                     color_[pr.pixel] += add;
@@ -980,6 +1130,17 @@ private:
     std::vector<uint32_t> live_;   ///< trace_shadows: the shadow rays not yet blocked
     std::vector<float> plane_x_;   ///< render_tile: image-plane x of the tile's pixel centres
     std::vector<float> row_rgb_;   ///< fill_background_tile: a row's colour, normal and albedo
+    /// shade_ground_lanes: a bounce's ground samples and what the lanes computed for them
+    struct GroundLanes {
+        std::vector<float> ox, oy, oz, dx, dy, dz, t, fade;   ///< every ground sample
+        std::vector<float> nx, ny, nz, sdx, sdy, sdz;   ///< each one shaded: normal, ray direction
+        std::vector<uint8_t> within;   ///< each one shaded: an object within its sky rays' length
+        /// per light, each sample shaded: u1, u2 (a soft directional light's), direction x, y,
+        /// z, ndl, specular lobe (a directional light's)
+        std::vector<std::array<std::vector<float>, 7>> light;
+        /// per sky-visibility ray: normal, basis t, b, u1, u2; direction x, y, z
+        std::array<std::vector<float>, 14> occ;
+    } gl_;
     bool background_possible_ = false;   ///< every object's bounds known (classify_tile)
 };
 

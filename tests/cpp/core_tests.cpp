@@ -20,6 +20,7 @@
 #include "pointviz/dispatch.h"
 #include "pointviz/geometry.h"
 #include "pointviz/render.h"
+#include "pointviz/shading_lanes.h"
 #include "pointviz/shading_math.h"
 #include "pointviz/tree.h"
 #include "check.h"
@@ -789,6 +790,50 @@ void test_render_skips_match_boundless(RenderScene scene, CameraModel cam, Rende
     }
 }
 
+/// The ground's samples shaded in lanes (RenderSettings::simd_lanes, shading_lanes.h) give
+/// the frame the scalar path gives, bit for bit: the oracle is the same render with the lanes
+/// off. Ground kinds (matte; glossy; mirror; a shininess that is not a whole number, whose lobe
+/// goes through std::pow), the fade and the sky-visibility rays on and off, 1 and 3 samples;
+/// the scene's lights are of every type (directional soft and hard, point, area).
+void test_render_simd_lanes(RenderScene scene, CameraModel cam, RenderSettings set) {
+    struct Kind {
+        const char *name;
+        float mirror, roughness, shininess;
+    };
+    const Kind kinds[] = {{"matte", 0.f, 0.f, 48.f}, {"glossy", 0.3f, 0.2f, 48.f},
+                          {"mirror", 0.8f, 0.f, 48.f}, {"matte, shininess 47.5", 0.f, 0.f, 47.5f}};
+    const auto same = [](const FrameBuffers &a, const FrameBuffers &b) {
+        const auto eq = [](const std::vector<float> &x, const std::vector<float> &y) {
+            return x.size() == y.size() && std::memcmp(x.data(), y.data(), x.size() * sizeof(float)) == 0;
+        };
+        return eq(a.color, b.color) && eq(a.depth, b.depth) && eq(a.normal, b.normal) && eq(a.alpha, b.alpha) &&
+               eq(a.albedo, b.albedo) && eq(a.object_alpha, b.object_alpha);
+    };
+    for (const Kind &k : kinds)
+        for (float fade : {scene.sky.ground_fade, 0.f})
+            for (float occlusion : {scene.sky.occlusion_distance, 0.f})
+                for (int spp : {1, 3}) {
+                    RenderScene sc = scene;
+                    sc.ground_material.mirror = k.mirror;
+                    sc.ground_material.roughness = k.roughness;
+                    sc.ground_material.shininess = k.shininess;
+                    sc.sky.ground_fade = fade;
+                    sc.sky.occlusion_distance = occlusion;
+                    RenderSettings on = set, off = set;
+                    on.spp = off.spp = spp;
+                    off.simd_lanes = false;
+                    FrameBuffers a, b;
+                    RenderStats sa, sb;
+                    Progress pa, pb;
+                    CHECK(render(sc, cam, on, a, sa, pa) && render(sc, cam, off, b, sb, pb), "render cancelled");
+                    size_t ground = 0;   // pixels that see the ground
+                    for (size_t i = 0; i < a.alpha.size(); ++i) ground += a.alpha[i] > a.object_alpha[i];
+                    CHECK(ground > 0, "%s: no ground in view", k.name);
+                    CHECK(same(a, b), "%s, fade %g, occlusion %g, spp %d, %dx%d: the lanes changed the frame",
+                          k.name, fade, occlusion, spp, cam.width, cam.height);
+                }
+}
+
 /// A scene with two surfel objects, a ground, lights of every type.
 void test_render() {
     std::mt19937_64 g(71);
@@ -880,6 +925,7 @@ void test_render() {
     CHECK(!render(scene, cam, set, fb3, s3, cancelled), "a cancelled render reported success");
     CHECK(s3.tiles_done == 0, "cancelled render did %llu tiles", (unsigned long long)s3.tiles_done.load());
     test_render_cancelled_midway(scene, cam, set);
+    test_render_simd_lanes(scene, cam, set);   // 37x23: widths off the lanes' step
     cam.width = 64;   // the ground far from the objects in view: sky-visibility rays skipped
     cam.height = 48;
     cam.eye = {0, 3.f, 9};
@@ -887,11 +933,13 @@ void test_render() {
     cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
     cam.up = cross(cam.right, cam.forward);
     test_render_skips_match_boundless(scene, cam, set, false);
+    test_render_simd_lanes(scene, cam, set);
     cam.eye = {1.f, 4.f, 40};   // far: most tiles show only the faded ground and the sky
     cam.forward = normalize(Vec3{0, -0.1f, -1});
     cam.right = normalize(cross(cam.forward, Vec3{0, 1, 0}));
     cam.up = cross(cam.right, cam.forward);
     test_render_skips_match_boundless(scene, cam, set, true);
+    test_render_simd_lanes(scene, cam, set);   // the far view: the fade's edge
     RenderScene sky_scene = scene;   // the sky behind the faded ground: its colour per sample
     sky_scene.sky.background_is_sky = true;
     test_render_skips_match_boundless(sky_scene, cam, set, true);
@@ -1023,6 +1071,162 @@ void test_shading_math() {
             CHECK(lobe_pow(x, e) == std::pow(x, e), "lobe_pow(%g, %g) is not std::pow's", x, e);
 }
 
+/// The lane kernels (shading_lanes.h) four at a time against the scalar expressions of
+/// render.cpp and vec.h, written out here with Vec3 as render.cpp writes them: every output the
+/// same bits, on random inputs, the quarter turns and their neighbours, zero-length vectors,
+/// samples on both sides of the fade's end, exponents whole and not.
+void test_shading_lanes() {
+#ifdef POINTVIZ_SHADING_LANES_SSE2
+    using lanes::F1;
+    using lanes::F4;
+    std::mt19937_64 g(18);
+    std::uniform_real_distribution<float> U(0.f, 1.f), S(-2.f, 2.f);
+    const auto bits = [](float x) { uint32_t u; std::memcpy(&u, &x, 4); return u; };
+    const auto eq3 = [&](Vec3 a, const float *x, const float *y, const float *z, int i) {
+        return bits(a.x) == bits(x[i]) && bits(a.y) == bits(y[i]) && bits(a.z) == bits(z[i]);
+    };
+    // turn_sincos
+    std::vector<float> us;
+    for (int i = 0; i < 4096; ++i) us.push_back(U(g));
+    for (float q : {0.f, 0.125f, 0.25f, 0.375f, 0.5f, 0.625f, 0.75f, 0.875f, 1.f}) {
+        float v = q;
+        for (int k = 0; k < 8 && v > 0.f; ++k) us.push_back(v = std::nextafter(v, 0.f));
+        v = q;
+        for (int k = 0; k < 8 && q < 1.f; ++k, v = std::nextafter(v, 1.f)) us.push_back(v);
+    }
+    while (us.size() % 4) us.push_back(0.5f);
+    for (size_t i = 0; i < us.size(); i += 4) {
+        F4 c, s;
+        lanes::turn_sincos(F4::load(&us[i]), c, s);
+        float cc[4], ss[4];
+        c.store(cc), s.store(ss);
+        for (int k = 0; k < 4; ++k) {
+            float rc, rs;
+            turn_sincos(us[i + k], rc, rs);
+            CHECK(bits(rc) == bits(cc[k]) && bits(rs) == bits(ss[k]), "lanes turn_sincos(%.9g): (%.9g, %.9g), scalar (%.9g, %.9g)",
+                  us[i + k], cc[k], ss[k], rc, rs);
+        }
+    }
+    // lobe_pow
+    for (float e : {1.f, 2.f, 7.f, 48.f, 1024.f, 47.5f, 0.5f, 2000.f})
+        for (size_t i = 0; i < us.size(); i += 4) {
+            float out[4];
+            lanes::lobe_pow(F4::load(&us[i]), e).store(out);
+            for (int k = 0; k < 4; ++k)
+                CHECK(bits(out[k]) == bits(lobe_pow(us[i + k], e)), "lanes lobe_pow(%.9g, %g) = %.9g, scalar %.9g",
+                      us[i + k], e, out[k], lobe_pow(us[i + k], e));
+        }
+    // normalize3, cone and cosine directions, light terms, fade: four random cases a step
+    const int n = 4096;
+    size_t zero_lengths = 0, faded = 0, fading = 0;
+    for (int i = 0; i < n; i += 4) {
+        float x[4], y[4], z[4], u1[4], u2[4], dx[4], dy[4], dz[4], t[4];
+        Vec3 nrm[4], tb[4], bb[4];
+        for (int k = 0; k < 4; ++k) {
+            const bool zero = (i / 4 + k) % 13 == 0;
+            x[k] = zero ? 0.f : S(g), y[k] = zero ? 0.f : S(g), z[k] = zero ? 0.f : S(g);
+            zero_lengths += zero;
+            u1[k] = U(g), u2[k] = U(g);
+            const Vec3 d = normalize(Vec3{S(g), S(g) - 1.5f, S(g)});
+            dx[k] = d.x, dy[k] = d.y, dz[k] = d.z;
+            t[k] = 40.f * U(g);
+            nrm[k] = normalize(Vec3{S(g), S(g), S(g)});
+            make_basis(nrm[k], tb[k], bb[k]);
+        }
+        {   // normalize3
+            F4 a = F4::load(x), b = F4::load(y), c = F4::load(z);
+            lanes::normalize3(a, b, c);
+            float ox[4], oy[4], oz[4];
+            a.store(ox), b.store(oy), c.store(oz);
+            for (int k = 0; k < 4; ++k)
+                CHECK(eq3(normalize(Vec3{x[k], y[k], z[k]}), ox, oy, oz, k), "lanes normalize differs");
+        }
+        const Vec3 axis = normalize(Vec3{x[0] + 0.1f, y[0] + 3.f, z[0]});
+        Vec3 at, ab;
+        make_basis(axis, at, ab);
+        const float cos_max = std::cos(0.05f + 0.5f * u1[0]);
+        float lx[4], ly[4], lz[4];
+        {   // sample_cone(Cone, u1, u2)
+            F4 a, b, c;
+            lanes::cone_direction(axis, at, ab, cos_max, F4::load(u1), F4::load(u2), a, b, c);
+            a.store(lx), b.store(ly), c.store(lz);
+            for (int k = 0; k < 4; ++k) {
+                const float cz = 1.f - u1[k] * (1.f - cos_max);
+                const float sz = std::sqrt(std::max(0.f, 1.f - cz * cz));
+                float cs, sn;
+                turn_sincos(u2[k], cs, sn);
+                const Vec3 ref = normalize(at * (sz * cs) + ab * (sz * sn) + axis * cz);
+                CHECK(eq3(ref, lx, ly, lz, k), "lanes cone direction differs (u %.9g %.9g)", u1[k], u2[k]);
+            }
+        }
+        {   // sample_cosine(n, t, b, u1, u2)
+            float in[9][4], ox[4], oy[4], oz[4];
+            for (int k = 0; k < 4; ++k) {
+                const Vec3 v[3] = {nrm[k], tb[k], bb[k]};
+                for (int c = 0; c < 9; ++c) in[c][k] = v[c / 3][c % 3];
+            }
+            F4 a, b, c;
+            lanes::cosine_direction(F4::load(in[0]), F4::load(in[1]), F4::load(in[2]), F4::load(in[3]),
+                                    F4::load(in[4]), F4::load(in[5]), F4::load(in[6]), F4::load(in[7]),
+                                    F4::load(in[8]), F4::load(u1), F4::load(u2), a, b, c);
+            a.store(ox), b.store(oy), c.store(oz);
+            for (int k = 0; k < 4; ++k) {
+                const float r = std::sqrt(u1[k]);
+                float c2, s2;
+                turn_sincos(u2[k], c2, s2);
+                const Vec3 ref = normalize(tb[k] * (r * c2) + bb[k] * (r * s2) +
+                                           nrm[k] * std::sqrt(std::max(0.f, 1.f - u1[k])));
+                CHECK(eq3(ref, ox, oy, oz, k), "lanes cosine direction differs");
+            }
+        }
+        for (float shin : {48.f, 47.5f}) {   // ndl and the lobe
+            float nx[4], ny[4], nz[4], ndl[4], spec[4];
+            for (int k = 0; k < 4; ++k) nx[k] = nrm[k].x, ny[k] = nrm[k].y, nz[k] = nrm[k].z;
+            F4 a, b;
+            lanes::light_terms(F4::load(nx), F4::load(ny), F4::load(nz), F4::load(lx), F4::load(ly),
+                               F4::load(lz), F4::load(dx), F4::load(dy), F4::load(dz), 0.15f, shin, a, b);
+            a.store(ndl), b.store(spec);
+            for (int k = 0; k < 4; ++k) {
+                const Vec3 ldir{lx[k], ly[k], lz[k]}, d{dx[k], dy[k], dz[k]};
+                const Vec3 hv = normalize(ldir - d);
+                const float rs = 0.15f * lobe_pow(std::max(0.f, dot(nrm[k], hv)), shin);
+                CHECK(bits(dot(nrm[k], ldir)) == bits(ndl[k]) && bits(rs) == bits(spec[k]),
+                      "lanes light terms differ: ndl %.9g / %.9g, spec %.9g / %.9g", ndl[k], dot(nrm[k], ldir), spec[k], rs);
+            }
+        }
+        {   // the fade: rays from an eye above the plane y = -1
+            const Vec3 gp{0.f, -1.f, 0.f}, gn{0.f, 1.f, 0.f};
+            const float fade = 3.f, end = 2.0001f * fade, end2 = end * end;
+            float ox[4], oy[4], oz[4], f[4];
+            for (int k = 0; k < 4; ++k) ox[k] = 0.3f, oy[k] = 2.f, oz[k] = 5.f;
+            lanes::ground_fade(F4::load(ox), F4::load(oy), F4::load(oz), F4::load(dx), F4::load(dy), F4::load(dz),
+                               F4::load(t), gp, gn, fade, end2).store(f);
+            for (int k = 0; k < 4; ++k) {
+                const Vec3 p = Vec3{ox[k], oy[k], oz[k]} + Vec3{dx[k], dy[k], dz[k]} * t[k];
+                const Vec3 gg = p - gp;
+                const float d2 = length2(gg - gn * dot(gg, gn));
+                float ref = 1.f;
+                if (!(d2 > end2)) {
+                    ref = std::clamp(std::sqrt(d2) / fade - 1.f, 0.f, 1.f);
+                    ref = ref * ref * (3.f - 2.f * ref);
+                }
+                faded += d2 > end2;
+                fading += ref > 0.f && ref < 1.f;
+                CHECK(bits(ref) == bits(f[k]), "lanes fade %.9g, scalar %.9g (d2 %.9g)", f[k], ref, d2);
+            }
+        }
+    }
+    CHECK(zero_lengths > 0 && faded > 0 && fading > 0, "cases not met: zero %zu faded %zu fading %zu",
+          zero_lengths, faded, fading);
+    // the scalar lane type is the scalar functions
+    F1 c1, s1;
+    lanes::turn_sincos(F1{0.3f}, c1, s1);
+    float rc, rs;
+    turn_sincos(0.3f, rc, rs);
+    CHECK(bits(c1.v) == bits(rc) && bits(s1.v) == bits(rs), "F1 turn_sincos");
+#endif
+}
+
 int main() {
     test_one_surfel();
     test_duplicates();
@@ -1036,6 +1240,7 @@ int main() {
     test_lod_budget();
     test_render();
     test_shading_math();
+    test_shading_lanes();
     test_empty_and_oversized_builds_throw();
     test_staged_build();
     std::printf("core_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);

@@ -127,6 +127,12 @@ struct RenderSettings {
     /// distance, the same sums in the same order, so the frame is the same bits. false: every
     /// tile takes the general path (the oracle of the tests).
     bool background_shortcut = true;
+    /// The ground's samples of a bounce shaded four at a time (shading_lanes.h): their fade,
+    /// each directional light's direction and terms and their sky-visibility directions
+    /// computed in SIMD lanes before the samples are shaded in order, with the scalar
+    /// expressions in the same order, so the frame is the same bits. false: every sample
+    /// shaded alone (the oracle of the tests).
+    bool simd_lanes = true;
     OffsetPolicy offsets;
 };
 
