@@ -8,6 +8,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 
 from .errors import CancelledError, PointvizError
 from .interrupt import CancelToken, cancel_scope, sigint_cancels
@@ -156,7 +157,9 @@ def _run(argv) -> tuple[int, bool]:
     token = CancelToken()
     # Run as a program (argv None), the handler stays after the run: a Ctrl-C between the end of
     # the command and the end of the process must not become a traceback.
-    with sigint_cancels(token, restore=argv is not None), cancel_scope(token):
+    with sigint_cancels(token, restore=argv is not None), cancel_scope(token), \
+            warnings.catch_warnings():
+        warnings.showwarning = _warning_line
         fast = False
         try:
             args_in = sys.argv[1:] if argv is None else list(argv)
@@ -177,6 +180,17 @@ def _run(argv) -> tuple[int, bool]:
         except (PointvizError, OSError, MemoryError) as exc:
             print(f"pointviz: error: {_one_line(exc)}", file=sys.stderr)
             return 2, fast
+
+
+def _warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning raised during a command, as the one line ``pointviz: MESSAGE`` on standard
+    error (``office1.pcd: dropped 52744 of 307200 points with NaN/inf coordinates ...``), not
+    Python's two lines naming the module and echoing its source. The filters are Python's:
+    each warning once per place it is raised, none that Python hides by default."""
+    try:
+        print(f"pointviz: {_one_line(message)}", file=sys.stderr if file is None else file)
+    except (OSError, ValueError):  # standard error closed: a warning is not worth failing for
+        pass
 
 
 #: Exit status when the reader of standard output went away: a filter ended by SIGPIPE's.

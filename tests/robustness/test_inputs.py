@@ -446,3 +446,27 @@ def test_cli_bad_output_extension_fails_before_rendering(tmp_path):
 def test_cli_fov_zero_on_demo_is_rejected(tmp_path):
     code, _, err = _cli(["render", "demo", "-o", "o.png", "--fov", "0", "--width", "8"], tmp_path)
     assert code == 2 and "fov" in err
+
+
+def test_cli_warnings_print_one_line_each(tmp_path):
+    """A warning raised while a command runs (here the reader's, for rows with NaN coordinates)
+    is one line ``pointviz: FILE: what`` on stderr, not Python's module path and source echo;
+    the command still succeeds. Oracle: the reader's own warning, caught in-process."""
+    import warnings
+
+    from pointviz.io import load
+
+    rows = [f"{x:.3f} {y:.3f} {0.1 * x * y:.3f}" for x in range(8) for y in range(8)]
+    rows[5] = "nan 1.0 2.0"
+    rows[17] = "1.0 inf 2.0"
+    (tmp_path / "holes.xyz").write_text("\n".join(rows) + "\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load(tmp_path / "holes.xyz", estimate=False)
+    expected = " ".join(str(caught[0].message).split())
+    assert "holes.xyz" in expected and "dropped 2 of 64" in expected, expected
+    code, out, err = _cli(["info", "holes.xyz"], tmp_path)
+    assert code == 0, err
+    assert err.strip().splitlines() == [f"pointviz: {expected}"], err
+    points = [line.split()[1] for line in out.splitlines() if line.split()[:1] == ["points"]]
+    assert points == ["62"], out
