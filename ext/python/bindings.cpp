@@ -420,12 +420,13 @@ void check_normals(const CArray<float> &normals, size_t n) {
                normals.ndim() > 1 ? normals.shape(1) : 0, n, 3);
 }
 
-/// Runs one preprocessing step with the GIL released.
+/// Runs one preprocessing step on a worker thread with the GIL released, polling the ambient
+/// cancel token (pointviz.interrupt.poll) every few ms: Ctrl-C in the CLI, or a token set in
+/// `cancel_scope`, stops the step at its next check with CancelledError.
 template <class Fn>
 auto run_step(Fn &&fn) {
     Progress progress;
-    nb::gil_scoped_release release;
-    return fn(progress);
+    return run_with_progress(progress, poll_or_ambient(nb::none()), fn);
 }
 
 template <class T, class A>
