@@ -11,7 +11,8 @@ import sys
 import warnings
 
 from .errors import CancelledError, PointvizError
-from .interrupt import CancelToken, cancel_scope, sigint_cancels
+from .interrupt import CancelToken, cancel_scope, reporting, sigint_cancels
+from .progress import StepBars
 
 
 def _spawned_by_the_cli() -> bool:
@@ -166,7 +167,10 @@ def _run(argv) -> tuple[int, bool]:
             parser = build_parser(args_in)
             args = parser.parse_args(args_in)
             fast = argv is None and bool(getattr(args, "exit_fast", False))
-            status = int(args.run(args) or 0)
+            # the preprocessing's steps as progress bars (on a terminal, or with --progress)
+            bars = StepBars(enabled=True if getattr(args, "progress", False) else None)
+            with reporting(bars):
+                status = int(args.run(args) or 0)
             token.check()  # interrupted after the last check: the run did not end normally
             return status, fast
         except (CancelledError, KeyboardInterrupt):

@@ -246,6 +246,7 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     numpy's). ``threads``: 0, all cores.
     """
     from . import _core
+    from .interrupt import step_named
 
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     cells = np.ascontiguousarray(grid, dtype=np.int32).reshape(-1, 2)
@@ -253,10 +254,11 @@ def patch_planes(points: np.ndarray, grid: np.ndarray, viewpoint, step: np.ndarr
     steps = np.ascontiguousarray(step, dtype=np.float64).reshape(-1)
     if not len(pts):
         raise ValueError("patch_planes: no points")
-    moved, normals, radius, flying, _ = _core.depth_patch_planes(
-        pts, cells, vp, steps, bool(edges), DEPTH_SLOPE_ERROR, NOISE_RADIUS, NOISE_SAMPLE,
-        list(PATCH_RADII), PATCH_RESIDUAL_STEPS, PATCH_RESIDUAL_SIGMAS, MOVE_STEPS, EDGE_STEPS,
-        EDGE_SIGMAS, EDGE_FOOTPRINTS, SMALL_SEGMENT, threads=int(threads))
+    with step_named("depth planes"):
+        moved, normals, radius, flying, _ = _core.depth_patch_planes(
+            pts, cells, vp, steps, bool(edges), DEPTH_SLOPE_ERROR, NOISE_RADIUS, NOISE_SAMPLE,
+            list(PATCH_RADII), PATCH_RESIDUAL_STEPS, PATCH_RESIDUAL_SIGMAS, MOVE_STEPS,
+            EDGE_STEPS, EDGE_SIGMAS, EDGE_FOOTPRINTS, SMALL_SEGMENT, threads=int(threads))
     return moved, normals, radius, flying.view(bool)
 
 

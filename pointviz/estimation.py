@@ -163,10 +163,30 @@ FIT_THIN = 0.75
 STRAY_K = FIT_MIN_SUPPORT - 1
 
 
-def _core():
+def _core(step: str | None = None):
+    """The core module; with ``step``, its calls report their progress under that name
+    (:func:`pointviz.interrupt.step_named`: the command line's progress bars)."""
     from . import _core as core
 
-    return core
+    return core if step is None else _NamedStep(core, step)
+
+
+class _NamedStep:
+    """The core module whose calls run as the named step."""
+
+    def __init__(self, core, step: str):
+        self._core, self._step = core, step
+
+    def __getattr__(self, attr):
+        from .interrupt import step_named
+
+        fn = getattr(self._core, attr)
+
+        def call(*args, **kwargs):
+            with step_named(self._step):
+                return fn(*args, **kwargs)
+
+        return call
 
 
 def _points(value, name: str = "points", minimum: int = 1) -> np.ndarray:
@@ -305,7 +325,7 @@ def knn(points, k: int, *, threads: int = 0):
         Neighbour indices. Exact duplicates of a point are its neighbours at distance 0.
     """
     pts = _points(points)
-    dist, idx = _core().knn(pts, _count("k", k, 1), _threads(threads))
+    dist, idx = _core("neighbours").knn(pts, _count("k", k, 1), _threads(threads))
     return dist, idx.astype(np.int64)
 
 
@@ -378,7 +398,7 @@ def estimate_normals(
         k_min = k_max = max(3, _count("k", k, 3))
     vp = _viewpoints(viewpoints, n)
     groups = _groups(scan_index, vp, n)
-    out = _core().estimate_normals(
+    out = _core("normals").estimate_normals(
         pts, vp, groups, _up(up), min(k_min, n), min(k_max, n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), _grid(scan_grid, groups, n),
         above=_above(from_above, up),
@@ -408,7 +428,7 @@ def normals_and_radii(points, *, up=None, from_above: bool = False, volume: bool
     """
     pts = _normal_points(points)
     n = len(pts)
-    out = _core().estimate_normals(
+    out = _core("normals").estimate_normals(
         pts, None, None, _up(up), min(NORMAL_K_MIN, n), min(_k_max(from_above), n),
         NORMAL_CONFIDENCE, _orient(), _threads(threads), None, above=_above(from_above, up),
         cover_k=min(COVER_K, n - 1), directions=COVER_DIRECTIONS, margin=COVER_MARGIN,
@@ -461,7 +481,7 @@ def orient_normals(points, normals, *, viewpoints=None, up=None, from_above: boo
     """
     pts = _points(points)
     nrm = _normals(normals, len(pts))
-    out, _ = _core().orient_normals(pts, nrm, _viewpoints(viewpoints, len(pts)), _up(up),
+    out, _ = _core("orientation").orient_normals(pts, nrm, _viewpoints(viewpoints, len(pts)), _up(up),
                                     _orient(_count("k", k, 1)), _threads(threads),
                                     above=_above(from_above, up))
     return out.astype(np.float64)
@@ -540,7 +560,7 @@ def coverage_radii(points, normals, *, k: int = COVER_K, margin: float = COVER_M
         raise InputError("radii: cannot be estimated from a single point; pass radii")
     _distinct(pts, "radii")
     nrm = _normals(normals, n)
-    out = _core().coverage_radii(pts, nrm, min(_count("k", k, 1), n - 1), COVER_DIRECTIONS,
+    out = _core("radii").coverage_radii(pts, nrm, min(_count("k", k, 1), n - 1), COVER_DIRECTIONS,
                                  float(margin), float(cap), COVER_GLOBAL_CAP, _threads(threads),
                                  volume=_volume(volume))
     bad = ~(out > 0)
@@ -695,7 +715,7 @@ def fit_surface(points, normals=None, *, viewpoints=None, scan_index=None, scan_
     group = _groups(scan_index, vp, n)
     if not (np.isfinite(thin) and 0.0 <= thin <= 2.0):
         raise InputError(f"thin: expected a number in [0, 2], got {thin!r}")
-    out = _core().fit_surface(
+    out = _core("surface fit").fit_surface(
         pts, nrm, vp, group, _up(up), min(NORMAL_K_MIN, n), min(FIT_NORMAL_K_MAX, n),
         NORMAL_CONFIDENCE, _orient(), FIT_MIN_SUPPORT, bool(quadric), _count("passes", passes, 1),
         _count("robust_passes", robust_passes, 0),
@@ -778,6 +798,6 @@ def stray_clusters(points, *, scan_index=None, k: int = STRAY_K, threads: int = 
     n = len(pts)
     group = None if scan_index is None else array_checks.per_point(
         "scan_index", scan_index, n, np.int32)
-    out = _core().stray_clusters(pts, group, min(_count("k", k, 1), n - 1), threads=_threads(threads))
+    out = _core("stray clusters").stray_clusters(pts, group, min(_count("k", k, 1), n - 1), threads=_threads(threads))
     return StrayClusters(stray=out["stray"].astype(bool), label=out["label"].astype(np.int64),
                          components=int(out["components"]), clusters=int(out["clusters"]))

@@ -51,6 +51,9 @@ PAUSE_TIMEOUT_S = 120.0
 PAUSE_SLICE_S = 0.005
 
 _paused: set[str] = set()
+#: The callback of :func:`reporting` and the name of the step in force (:func:`step_named`).
+_reporter: contextvars.ContextVar = contextvars.ContextVar("pointviz_reporter", default=None)
+_step_name: contextvars.ContextVar = contextvars.ContextVar("pointviz_step_name", default=None)
 
 
 class CancelToken:
@@ -95,19 +98,53 @@ def check() -> None:
 
 
 def poll(done: int = 0, total: int = 0) -> bool:
-    """The core's progress callback when its caller passes none: False (stop) once cancelled."""
+    """The core's progress callback when its caller passes none: False (stop) once cancelled.
+    Inside :func:`reporting` and a :func:`step_named` step, it also reports the step's progress."""
+    report = _reporter.get()
+    if report is not None and total:
+        name = _step_name.get()
+        if name is not None:
+            report(name, done, total)
     return not cancelled()
+
+
+@contextlib.contextmanager
+def reporting(callback):
+    """Inside, the core's calls that take no progress callback of their own (the
+    preprocessing: neighbours, normals, radii, the surface fit, ...) report to
+    ``callback(name, done, total)``, ``name`` the step's (:func:`step_named`), and once more with
+    ``done == total`` when the step ends. The command line shows them as bars
+    (:class:`pointviz.progress.StepBars`)."""
+    with _in_force(_reporter, callback):
+        yield callback
+
+
+@contextlib.contextmanager
+def step_named(name: str):
+    """The core calls inside report their progress under ``name`` (see :func:`reporting`)."""
+    with _in_force(_step_name, name):
+        yield
+        report = _reporter.get()
+        if report is not None:
+            report(name, 1, 1)
 
 
 @contextlib.contextmanager
 def cancel_scope(token: CancelToken | None = None):
     """Make ``token`` (a new one by default) the token in force for this thread's code inside."""
     token = CancelToken() if token is None else token
-    reset = _current.set(token)
-    try:
+    with _in_force(_current, token):
         yield token
+
+
+@contextlib.contextmanager
+def _in_force(var: contextvars.ContextVar, value):
+    """``var`` set to ``value`` inside, its previous value back on the way out."""
+    reset = var.set(value)
+    try:
+        yield value
     finally:
-        _current.reset(reset)
+        var.reset(reset)
 
 
 @contextlib.contextmanager

@@ -45,3 +45,29 @@ class ProgressBar:
             sys.stderr.write(f"{self.label}: {pct:3d}% {el:6.1f}s\n")
         sys.stderr.flush()
         return True
+
+
+class StepBars:
+    """Progress of successive named steps (``callback(name, done, total)`` of
+    :func:`pointviz.interrupt.reporting`): one :class:`ProgressBar` per step, shown once the
+    step has run SHOW_AFTER_S seconds, so that quick steps say nothing."""
+
+    #: A step shorter than this shows no bar, seconds.
+    SHOW_AFTER_S = 0.5
+
+    def __init__(self, enabled: bool | None = None):
+        self.enabled = enabled
+        self._name = None
+        self._bar = None
+        self._start = 0.0
+
+    def __call__(self, name: str, done: int, total: int):
+        now = time.monotonic()
+        if name != self._name:
+            self._name, self._bar, self._start = name, None, now
+        if self._bar is None and now - self._start >= self.SHOW_AFTER_S:
+            self._bar = ProgressBar(name, enabled=self.enabled)
+            self._bar.start = self._start
+        if done >= total:
+            self._name = None  # the step ended: the same name again is a new step
+        return True if self._bar is None else self._bar(done, total)

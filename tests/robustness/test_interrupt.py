@@ -341,3 +341,37 @@ def test_the_token_in_force_cancels_the_preprocessing_steps():
             timer.cancel()
         stopped = time.perf_counter() - t0
     assert stopped < full / 2, (stopped, full)
+
+
+def test_the_preprocessing_steps_report_their_progress_by_name(capsys, monkeypatch):
+    """Inside ``reporting``, each core preprocessing step reports ``(name, done, total)`` under
+    its own name while it runs (done never above total) and ``(name, 1, 1)`` when it ends;
+    ``StepBars`` turns them into one bar per step on stderr, silent for steps shorter than
+    SHOW_AFTER_S. Outside ``reporting`` nothing is reported (the same calls print nothing)."""
+    from pointviz import estimation
+    from pointviz.progress import StepBars
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(300_000, 3))
+    calls = []
+    with interrupt.reporting(lambda *c: calls.append(c)):
+        nrm = estimation.estimate_normals(pts, threads=1)
+        estimation.coverage_radii(pts, nrm.astype(np.float32), threads=1)
+    names = [c[0] for c in calls]
+    assert names[-1] == "radii" and calls[-1] == ("radii", 1, 1), calls[-3:]
+    assert ("normals", 1, 1) in calls and names.index("radii") > names.index("normals")
+    assert all(0 <= done <= total for _, done, total in calls), calls
+    # the normals ran long enough (~0.5 s on one thread) to be polled while running
+    assert any(c[0] == "normals" and c != ("normals", 1, 1) for c in calls), calls
+
+    capsys.readouterr()
+    monkeypatch.setattr(StepBars, "SHOW_AFTER_S", 0.0)
+    with interrupt.reporting(StepBars(enabled=True)):
+        estimation.knn(pts[:5000], 8)
+    err = capsys.readouterr().err
+    assert "neighbours: 100%" in err, err
+    monkeypatch.setattr(StepBars, "SHOW_AFTER_S", 3600.0)
+    with interrupt.reporting(StepBars(enabled=True)):
+        estimation.knn(pts[:5000], 8)
+    estimation.knn(pts[:5000], 8)
+    assert capsys.readouterr().err == ""
