@@ -40,7 +40,7 @@ import lod_budget
 import paper_figures as pf
 
 #: lod.h: kBudgetScale * kSpreadWeight, kBudgetScale * kColourWeight, kBudgetFloor, kBudgetMaxExtent.
-SPREAD_TERM, COLOUR_TERM, FLOOR, MAX_EXTENT = 2.16 * 0.262 / 4, 2.16 * 0.454, 0.0005, 8.0
+SPREAD_TERM, COLOUR_TERM, FLOOR, MAX_EXTENT = 2.16 * 0.262 / 8, 2.16 * 0.454, 0.0005, 8.0
 #: The budget the statistics are about.
 BUDGET = bench_lod.DEFAULT_BUDGET
 #: Budgets of the FLIP-against-E frames.
