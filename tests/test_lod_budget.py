@@ -398,3 +398,21 @@ def test_far_budget_frame_with_footprint_offsets_keeps_the_budget(torus_scene):
     # the offsets (FLIP 0.034 at its own), the frame's mean radiance being the torus's few pixels
     auto.exposure = full.exposure
     assert _flip(full, auto) <= DEFAULT_MAX_ERROR
+
+
+def test_benchmark_copies_of_the_predictor_agree_with_the_core():
+    """benchmarks/lod_refusals.py repeats lod.h's calibration constants to classify refusals
+    offline: they must be the core's (a recalibration changes both)."""
+    from pathlib import Path
+
+    from pointviz import _core
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    try:
+        import lod_refusals
+    finally:
+        sys.path.pop(0)
+    assert lod_refusals.SPREAD_TERM == pytest.approx(_core.SPREAD_TERM, rel=1e-6)
+    assert lod_refusals.COLOUR_TERM == pytest.approx(_core.COLOUR_TERM, rel=1e-6)
+    assert lod_refusals.FLOOR == pytest.approx(_core.BUDGET_FLOOR, rel=1e-6)
+    assert lod_refusals.MAX_EXTENT == _core.BUDGET_MAX_EXTENT

@@ -499,6 +499,10 @@ NB_MODULE(_core, m) {
     m.doc() = "pointviz C++ core: surfel hierarchy, traversal and rendering";
     // the error of a frame in which nothing stops (lod.h), for the budget's share in Python
     m.attr("BUDGET_FLOOR") = double(kBudgetFloor);
+    // the predictor's terms per unit feature and its size cap (lod.h), for the benchmarks' copies
+    m.attr("SPREAD_TERM") = double(kBudgetScale * kSpreadWeight);
+    m.attr("COLOUR_TERM") = double(kBudgetScale * kColourWeight);
+    m.attr("BUDGET_MAX_EXTENT") = double(kBudgetMaxExtent);
 
     // pointviz::Cancelled (a core call stopped by its Progress) -> pointviz.CancelledError.
     nb::register_exception_translator([](const std::exception_ptr &p, void *) {
