@@ -134,6 +134,10 @@ def test_frames_identical_across_thread_counts(ball):
 
 
 def test_lod_changes_the_image_little_at_one_pixel():
+    """Objects standing on a mirror ground: at 1 px the frame stays within 38 dB of full detail.
+    Rays leaving the (exact) ground keep full detail's clearance: with a footprint-sized one
+    they passed the objects' feet (the mirror showed the background through them: 24.9 dB with
+    the objects culled, 30.7 two-sided)."""
     scene, cam = shapes.demo_scene(detail=0.5)
     cam = cam.with_size(200, 125)
     full = pointviz.render(scene, cam, spp=1, lod_pixels=0, seed=0)
@@ -142,7 +146,7 @@ def test_lod_changes_the_image_little_at_one_pixel():
     b = lod.to_srgb8().astype(float)
     mse = np.mean((a - b) ** 2)
     psnr = 10 * np.log10(255.0**2 / max(mse, 1e-12))
-    assert psnr > 30.0
+    assert psnr > 38.0
 
 
 def test_cancel_stops_and_raises(ball):

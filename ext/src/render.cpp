@@ -691,6 +691,16 @@ private:
         stats_.background += samples;
     }
 
+    /// The local scale of OffsetPolicy for the rays leaving hit `h` of ray `r`: the blended disk
+    /// radius, the ray's footprint where level-of-detail disks may stand for the surface
+    /// (RenderSettings::footprint_offsets), and the floor. Not the footprint on the ground: an
+    /// exact plane, whose rays meet no disk of their own, and whose footprint-sized clearance
+    /// would let them pass the objects standing on it (a mirror ground showed the background
+    /// through the foot of what it reflects, shadows and sky visibility lost their contact).
+    float offset_scale(const SurfaceHit &h, const Ray &r, bool ground) const {
+        return std::max({h.radius, set_.footprint_offsets && !ground ? r.footprint(h.t) : 0.f, min_offset_});
+    }
+
     /// Whether some object may lie within `dist` of `p`: false when `p` is farther than `dist`
     /// from every object's bounds (with a relative margin of 1e-3 over float rounding, itself
     /// harmless: a ray let through is traced and finds nothing).
@@ -782,8 +792,7 @@ private:
             uint8_t within = 0;
             if (n_occ > 0) {
                 const Vec3 p = r.o + r.d * h.t;
-                const float scale = std::max(
-                    {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
+                const float scale = offset_scale(h, r, true);
                 const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
                 const float tmin = set_.offsets.tmin * scale;
                 within = object_within(origin, std::max(tmin, sky_model.occlusion_distance));
@@ -911,8 +920,7 @@ private:
             const bool follow = reflects && m.roughness == 0.f;
             if (pr.albedo)
                 albedo_[pr.pixel] += weight * clamp01(albedo) * (follow ? keep : 1.f);
-            const float scale = std::max(
-                {h.radius, set_.footprint_offsets ? r.footprint(h.t) : 0.f, min_offset_});
+            const float scale = offset_scale(h, r, nh.object == -2);
             const Vec3 origin = p + n * (set_.offsets.normal_offset * scale);
             const float tmin = set_.offsets.tmin * scale;
             const uint64_t gp = pixel_id(pr.pixel, x0, y0, tw);
