@@ -134,11 +134,14 @@ class Scene:
         Lights, sky light and occlusion, backdrop and exposure together (see :data:`LOOKS`);
         "auto" picks "outdoor" for a terrain tile and "studio" for an object
         (:func:`pointviz.framing.shape_kind` of the first cloud).
-    two_sided : bool
-        Show surfels from both sides: the SurfelScenes built here skip the paper's normal-cone
-        culling (``cull=False``), which hides open scans (terrain, one-sided scans) seen from
-        behind; culling saves 0-10% of a frame (benchmarks/README.md). Set False for closed
-        models, or pass ``cull=`` explicitly.
+    two_sided : bool or "auto"
+        Whether surfels show from both sides. ``"auto"`` (default): the SurfelScenes built here
+        cull back faces where the surfels close a surface seen from outside and show both
+        sides otherwise (``cull="auto"``, :mod:`pointviz.sides`): a closed scan's far-side disks
+        that reach past its rims then leave no dark flecks, and open scans (terrain, one range
+        scan, a depth-camera frame) stay visible from behind. True: never cull (``cull=False``);
+        False: the SurfelScene's own default (culling). Culling saves 0-10% of a frame
+        (benchmarks/README.md). ``cull=`` passed explicitly wins.
     **scene_options
         Passed to the SurfelScene built for each PointCloud (e.g. ``interpolation``).
 
@@ -156,7 +159,7 @@ class Scene:
     """
 
     def __init__(self, clouds, lights=None, ground="auto", background="sky", materials=None,
-                 up=None, ambient: float | None = None, sky=None, two_sided: bool = True,
+                 up=None, ambient: float | None = None, sky=None, two_sided: bool | str = "auto",
                  look="auto", **scene_options):
         from .surfels import SurfelScene
 
@@ -178,7 +181,11 @@ class Scene:
             up = getattr(first, "up", None)
         up = _unit(_Y_UP if up is None else up, "up")
         up.setflags(write=False)
-        if two_sided:
+        if isinstance(two_sided, str) and two_sided != "auto":
+            raise InputError(f"two_sided: expected True, False or 'auto', got {two_sided!r}")
+        if two_sided == "auto":
+            scene_options.setdefault("cull", "auto")
+        elif two_sided:
             scene_options.setdefault("cull", False)
         objects = []
         for c, m in zip(clouds, materials):

@@ -142,6 +142,9 @@ class SurfelScene:
         How the disks around a hit are blended (see ``pointviz._core.Interpolation``).
     lod, cull : bool, optional
         Level of detail (needs a pixel footprint at query time) and normal-cone culling.
+        ``cull="auto"``: culling when the surfels close a surface seen from outside, and
+        two-sided otherwise (:func:`pointviz.sides.is_closed`: rays cast at the tree from all
+        around it meet at most 15 % back faces; :attr:`back_face_share` keeps the share).
     box_depth : int or "auto" or "all", optional
         Tree levels above this use boxes, the rest spheres.
     lod_pixels : float
@@ -188,7 +191,7 @@ class SurfelScene:
     """
 
     def __init__(self, cloud, *, variant: str = "full", interpolation: str | None = None,
-                 lod: bool | None = None, cull: bool | None = None, box_depth=None,
+                 lod: bool | None = None, cull: bool | str | None = None, box_depth=None,
                  lod_pixels: float = 1.0, window: float = 1.0, leaf_size: int = DEFAULT_LEAF_SIZE,
                  lod_criterion: str = "size", slabs: bool = True, traversal: str = "wide",
                  isa: str = "auto",
@@ -238,8 +241,12 @@ class SurfelScene:
         knobs = dict(VARIANTS[variant])
         if lod is not None:
             knobs["lod"] = bool(lod)
+        auto_cull = isinstance(cull, str)
+        if auto_cull and cull != "auto":
+            raise InputError(f"cull: expected True, False or 'auto', got {cull!r}")
         if cull is not None:
-            knobs["cull"] = bool(cull)
+            # "auto": decided once the tree is built (is_closed); the kdtree variant never culls
+            knobs["cull"] = False if auto_cull else bool(cull)
         if box_depth is not None:
             knobs["box_depth"] = box_depth
         points = np.ascontiguousarray(cloud.points, dtype=np.float64)
@@ -289,6 +296,14 @@ class SurfelScene:
         self._options.isa = getattr(_core.Isa, isa)
         self._options.wide = traversal == "wide"
         self.last_stats: dict = {}
+        #: cull="auto": the probe's share of back faces (pointviz.sides), None when not probed
+        self.back_face_share = None
+        if auto_cull and knobs.get("tree") != "kdtree":
+            from . import sides
+
+            self.back_face_share = sides.back_face_share(self)
+            self._options.cull = (self.back_face_share is not None
+                                  and self.back_face_share <= sides.CLOSED_BACK_SHARE)
 
     def _build_tree(self, cloud, held: dict, origin, leaf_size: int, box_depth: int,
                     consume: bool, wide: bool):
@@ -374,6 +389,12 @@ class SurfelScene:
     @property
     def origin(self) -> np.ndarray:
         return np.array(self._tree.origin)
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """Centre (world coordinates) and radius of the root node's sphere: every disk lies
+        within it."""
+        cx, cy, cz, r = self._tree.root_sphere()
+        return np.array([cx, cy, cz], dtype=np.float64) + self.origin, float(r)
 
     @property
     def tree(self):
@@ -465,7 +486,7 @@ class SurfelScene:
     # -- queries ----------------------------------------------------------------------------
     def cast_rays(self, rays, *, pixel_angle: float | None = None, camera=None,
                   lod_pixels: float | str | None = None, stats: bool = True,
-                  max_error: float | None = None) -> dict:
+                  max_error: float | None = None, cull: bool | None = None) -> dict:
         """Closest hits with interpolated attributes.
 
         Parameters
@@ -483,6 +504,8 @@ class SurfelScene:
         stats : bool
         max_error : float, optional
             With ``lod_pixels="auto"``: the budget (mean FLIP).
+        cull : bool, optional
+            Overrides the scene's back-face culling for this call.
 
         Returns
         -------
@@ -495,7 +518,10 @@ class SurfelScene:
         """
         arr = as_rays(rays)
         pa = _pixel_angle(pixel_angle, camera)
-        out, st = _core_call(self._tree.cast, arr, self.trace_options(lod_pixels, max_error), pixel_angle=pa,
+        opts = self.trace_options(lod_pixels, max_error)
+        if cull is not None:
+            opts.cull = bool(cull)
+        out, st = _core_call(self._tree.cast, arr, opts, pixel_angle=pa,
                              threads=self.threads or 0, stats=stats)
         self.last_stats = dict(st)
         return out

@@ -703,6 +703,11 @@ NB_MODULE(_core, m) {
             return nb::ndarray<nb::numpy, const float, nb::ndim<2>>(
                 reinterpret_cast<const float *>(t.surfels().data()), 2, shape, self);
         })
+        .def("root_sphere", [](const SurfelTree &t) {
+            // The root node's bounding sphere: centre (the tree's local frame) and radius.
+            const Node &r = t.nodes().at(0);
+            return std::make_tuple(r.c.x, r.c.y, r.c.z, r.radius);
+        })
         .def("node_arrays", [](const SurfelTree &t) {
             // Decoded copies of the node fields, for tests and diagnostics.
             size_t n = t.nodes().size();

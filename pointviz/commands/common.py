@@ -290,8 +290,9 @@ def handed_over_scene(cloud, lights, ground, look, options: dict):
     """The scene of one cloud whose arrays go to its tree's build
     (``SurfelScene(consume_cloud=True)``: each is freed once copied), so that a large file
     costs the tree and not the cloud beside it at the peak. The cloud cannot be used
-    afterwards. The tree has the options :class:`~pointviz.scene.Scene` gives its own (two
-    sided: no cone culling); bounds, ground and the "auto" look come from its float32 surfels.
+    afterwards. The tree has the options :class:`~pointviz.scene.Scene` gives its own (culling
+    when its surfels close a surface: ``cull="auto"``); bounds, ground and the "auto" look come
+    from its float32 surfels.
     Ends at the stages of :func:`prepare_scene`."""
     from ..scene import Scene
     from ..surfels import SurfelScene
@@ -299,7 +300,7 @@ def handed_over_scene(cloud, lights, ground, look, options: dict):
     _ = cloud.normals, cloud.radii
     stage("normals")
     up = getattr(cloud, "up", None)  # read before the hand-over
-    tree = SurfelScene(cloud, consume_cloud=True, **{"cull": False, **options})
+    tree = SurfelScene(cloud, consume_cloud=True, **{"cull": "auto", **options})
     stage("built")
     return Scene([tree], lights=lights, ground=ground, look=look, up=up)
 
