@@ -80,6 +80,40 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(acc, length[:, None], out=np.zeros_like(acc), where=length[:, None] > 0)
 
 
+#: Most boundary edges (in one face only) a mesh may have, as a share of its edges, for its
+#: winding's signed volume to say which way is out (a few holes or seams left by zippering).
+CLOSED_BOUNDARY_SHARE = 0.02
+
+
+def outward_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The faces wound outward: those of a closed mesh whose winding encloses a negative volume
+    (counter-clockwise seen from inside: a mesh saved inside out) with two of each face's
+    vertices swapped; any other mesh's as given.
+
+    The signed volume (summed over faces, about the vertices' centroid) decides only when the
+    mesh is closed: at most CLOSED_BOUNDARY_SHARE of its edges belong to one face. An open sheet
+    has no inside, and its winding is kept.
+
+    Returns
+    -------
+    faces : (f, 3) int64
+    turned : bool
+        Whether the winding was turned.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    c = v.mean(axis=0)
+    a, b, d = v[f[:, 0]] - c, v[f[:, 1]] - c, v[f[:, 2]] - c
+    if not np.einsum("ij,ij->i", a, np.cross(b, d)).sum() < 0:
+        return f, False
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    key = edges[:, 0] * np.int64(len(v)) + edges[:, 1]
+    _, count = np.unique(key, return_counts=True)
+    if np.count_nonzero(count == 1) > CLOSED_BOUNDARY_SHARE * len(count):
+        return f, False
+    return f[:, [0, 2, 1]], True
+
+
 def _check_faces(faces, nverts: int) -> np.ndarray:
     arr = _numeric("faces", faces)
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -685,12 +719,19 @@ class PointCloud:
         Returns
         -------
         PointCloud
-            Normals follow the face winding (counter-clockwise seen from outside = outward).
+            Normals follow the face winding (counter-clockwise seen from outside = outward);
+            a closed mesh wound inside out is turned first (:func:`outward_faces`; ``notes``
+            says so).
         """
         v = _rows3("vertices", vertices, None).astype(np.float64)
         f = _check_faces(faces, len(v))
         if len(f) == 0:
             raise InputError("faces: the mesh has no faces")
+        f, turned = outward_faces(v, f)
+        if turned:
+            kw["notes"] = list(kw.get("notes") or []) + [
+                "the mesh is closed and wound inside out (its faces enclose a negative volume): "
+                "normals turned outward"]
         if sample is not None:
             check_int(sample, "sample")
             kw.pop("colors", None)  # vertex colours do not apply to sampled points

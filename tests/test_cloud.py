@@ -425,6 +425,29 @@ def test_from_mesh_vertices_get_outward_face_normals():
     assert cloud.has_normals
 
 
+def test_from_mesh_turns_a_closed_mesh_wound_inside_out():
+    v, f = octahedron()
+    for faces in (f[:, ::-1], f[:, [0, 2, 1]]):  # every face wound the other way
+        cloud = PointCloud.from_mesh(v, faces)
+        np.testing.assert_allclose(cloud.normals, v, atol=1e-6)  # outward all the same
+        assert any("inside out" in n for n in cloud.notes)
+        sampled = PointCloud.from_mesh(v, faces, sample=500, rng=0)
+        assert (np.einsum("ij,ij->i", sampled.normals, sampled.points) > 0).all()
+    assert not PointCloud.from_mesh(v, f).notes
+
+
+def test_from_mesh_keeps_an_open_meshs_winding():
+    # a square of two faces wound downward (-z), and an octahedron missing two of its eight
+    # faces (a quarter of its edges on the boundary), wound inside out: no inside to go by
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    cloud = PointCloud.from_mesh(sq, [[0, 2, 1], [0, 3, 2]])
+    np.testing.assert_allclose(cloud.normals, np.tile([0, 0, -1.0], (4, 1)), atol=1e-9)
+    v, f = octahedron()
+    cloud = PointCloud.from_mesh(v, f[2:, ::-1])
+    assert (np.einsum("ij,ij->i", cloud.normals, v) < 0).all()
+    assert not cloud.notes
+
+
 def test_from_mesh_loose_vertex_borrows_nearest_normal():
     v, f = octahedron()
     v = np.r_[v, [[0, 0, 1.01]]]

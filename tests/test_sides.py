@@ -160,10 +160,14 @@ def test_the_cli_build_decides_too():
 @pytest.mark.data
 @pytest.mark.slow
 def test_real_scans(shared_data):
-    """The dragon's 15 registered scans close a surface (its base unscanned: ~11 % back faces);
-    one of the bunny's range scans and a LiDAR tile do not."""
+    """The dragon's 15 registered scans close a surface (its base unscanned: ~11 % back faces),
+    and so does the Cyberware horse, a mesh saved inside out that loading turns; one of the
+    bunny's range scans and a LiDAR tile do not."""
     dragon = pointviz.load(shared_data / "stanford_dragon/dragon_stand/dragonStandRight.conf")
     assert pointviz.SurfelScene(dragon, cull="auto").cull is True
+    horse = pointviz.load(shared_data / "misc_scans/horse_cyberware.ply")
+    assert any("inside out" in n for n in horse.notes)
+    assert pointviz.SurfelScene(horse, cull="auto").back_face_share < 0.02
     one_scan = pointviz.load(shared_data / "stanford_bunny/data/bun000.ply")
     assert pointviz.SurfelScene(one_scan, cull="auto").cull is False
     tile = pointviz.load(shared_data / "lidar/simple.las")
