@@ -32,6 +32,6 @@ def test_bench_preprocess_quick_writes_every_section(shared_data, tmp_path):
             assert 0 <= m["outside"] <= 1
             assert m["normal_error_deg"] > 0 and m["depth_error"] > 0
         assert set(r["offset"]) == {"raw_points", "surfels", "poisson_vertices"}
-        assert 0 <= r["surfels_culled"]["holes"] <= 1
+        assert 0 <= r["surfels_two_sided"]["holes"] <= 1
     dragon = res["dragon"]
     assert dragon["fit_report"]["points_kept"] < dragon["points"]
