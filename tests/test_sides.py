@@ -172,3 +172,20 @@ def test_real_scans(shared_data):
     assert pointviz.SurfelScene(one_scan, cull="auto").cull is False
     tile = pointviz.load(shared_data / "lidar/simple.las")
     assert pointviz.SurfelScene(tile, cull="auto").cull is False
+
+
+@pytest.mark.parametrize("points, radius", [
+    (np.zeros((1, 3)), 0.1),                                            # one disk
+    (np.zeros((50, 3)), 0.01),                                          # all in one place
+    (np.c_[np.linspace(0, 1, 100), np.zeros(100), np.zeros(100)], 0.01),  # a line seen edge-on
+    (np.random.default_rng(0).normal(size=(200, 3)), 1e-30),            # disks too small to hit
+], ids=["one", "coincident", "line", "tiny"])
+def test_degenerate_clouds_keep_both_sides(points, radius):
+    n = len(points)
+    cloud = PointCloud(points, normals=np.tile([0.0, 1.0, 0.0], (n, 1)), radii=np.full(n, radius))
+    s = pointviz.SurfelScene(cloud, cull="auto")
+    assert s.cull is False
+    assert s.back_face_share is None or abs(s.back_face_share - 0.5) < 0.1
+    frame = pointviz.render(pointviz.Scene([cloud]), pointviz.Camera.fit(cloud, width=32, height=24),
+                            spp=1)
+    assert np.isfinite(frame.color).all()
