@@ -189,3 +189,24 @@ def test_degenerate_clouds_keep_both_sides(points, radius):
     frame = pointviz.render(pointviz.Scene([cloud]), pointviz.Camera.fit(cloud, width=32, height=24),
                             spp=1)
     assert np.isfinite(frame.color).all()
+
+
+@pytest.mark.parametrize("hand_over", [True, False], ids=["render", "view"])
+def test_the_sides_option(tmp_path, hand_over):
+    from pointviz.cli import build_parser
+    from pointviz.commands.common import make_scene_and_camera
+
+    ball, sheet = tmp_path / "ball.xyzn", tmp_path / "sheet.xyzn"
+    for path, cloud in ((ball, sphere(3000)), (sheet, plane(3000))):
+        np.savetxt(path, np.c_[cloud.points, cloud.normals], fmt="%.6f")
+
+    def cull(path, *opts):
+        args = build_parser().parse_args(["render", str(path), "-o", "x.png", *opts])
+        scene, _ = make_scene_and_camera(args, hand_over=hand_over)
+        return scene.geometry(0).cull
+
+    assert cull(ball) is True and cull(sheet) is False
+    assert cull(ball, "--sides", "two") is False
+    assert cull(sheet, "--sides", "one") is True
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["render", str(ball), "-o", "x.png", "--sides", "three"])
