@@ -126,9 +126,9 @@ class MeshGeometry:
         return hit
 
     def add_to(self, render_scene, origin, material, lod_pixels: float | str,
-               max_error: float | None = None) -> None:
+               max_error: float | None = None, sides: str | None = None) -> None:
         """Add the mesh (as callbacks of its frame at ``origin``) to a core RenderScene (a
-        mesh has no level of detail)."""
+        mesh has no level of detail, and its triangles show both sides)."""
         render_scene.add_callback(self.local(origin), material)
 
     def intersect(self, rays):

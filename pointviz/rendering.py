@@ -208,8 +208,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            lod_pixels: float | str = DEFAULTS.lod_pixels,
            max_error: float | None = DEFAULTS.max_error, seed: int = DEFAULTS.seed,
            threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
-           ground=DEFAULTS.ground, look=DEFAULTS.look, denoise=DEFAULTS.denoise,
-           background: bool = False, sample_offset: int = 0,
+           ground=DEFAULTS.ground, look=DEFAULTS.look, sides: str | None = DEFAULTS.sides,
+           denoise=DEFAULTS.denoise, background: bool = False, sample_offset: int = 0,
            sequence_spp: int | None = None, phase_times: bool = False) -> Frame:
     """Ray trace a frame.
 
@@ -246,6 +246,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     look : {"auto", "studio", "outdoor", "flat"} or Look, optional
         Lights, sky occlusion, backdrop and exposure (see :class:`pointviz.scene.Scene`);
         default: the scene's, "auto" for a PointCloud.
+    sides : {"auto", "one", "two"}, optional
+        Which sides of the surfels show: "one" culls back faces, "two" shows both, "auto" one
+        where they close a surface seen from outside and two elsewhere (:mod:`pointviz.sides`).
+        Default: each tree's own (a Scene built from clouds: "auto").
     denoise : bool, {"high", "balanced", "fast"} or pointviz.denoise.Denoiser
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
@@ -277,7 +281,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
 
     opts = RenderSettings(shadows=shadows, reflections=reflections, spp=spp,
                           lod_pixels=lod_pixels, max_error=max_error, seed=seed, threads=threads,
-                          ground=ground, look=look, denoise=denoise)
+                          ground=ground, look=look, sides=sides, denoise=denoise)
     quality = denoise_quality(opts.denoise)
     if quality is not None:
         check_available()  # before the expensive part
@@ -290,7 +294,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     lod_pixels, max_error = check_lod(opts.lod_pixels, opts.max_error)
 
     rs, origin, share_scale, scene_look = _core_scene(scene_or_cloud, kw, camera, lod_pixels,
-                                                      max_error)
+                                                      max_error, opts.sides)
     settings = _core.RenderSettings()
     settings.spp = spp
     settings.reflections = reflections
@@ -359,14 +363,14 @@ _CORE_MEMO = "_core_scene"
 CORE_SCENES_KEPT = 16
 
 
-def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
+def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error, sides=None):
     """The core's RenderScene of a frame, its local origin, the budget's share scale
     (:func:`budget_scale`, None unless ``lod_pixels == "auto"``) and the scene's look.
 
     The last CORE_SCENES_KEPT answers are kept with the Scene or SurfelScene the frame was
     asked of, keyed by everything they are made from that may differ between two frames of that
     scene: the camera (its lights follow the view, the share scale the frame), ``lod_pixels``
-    and ``max_error``, the ground and look asked for, and each tree's traversal options (read
+    and ``max_error``, the ground, look and sides asked for, and each tree's traversal options (read
     when the scene is made, and settable in place). The rest (objects, materials, lights, sky,
     ground) is frozen with the scene. A kept RenderScene is never changed after it is made (so
     frames on other threads may share it), and is kept only when every object is a
@@ -385,7 +389,7 @@ def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
     key = None
     if holder is not None:
         try:
-            key = (tuple(sorted(kw.items())), _camera_key(camera), lod_pixels, max_error)
+            key = (tuple(sorted(kw.items())), _camera_key(camera), lod_pixels, max_error, sides)
             hash(key)
         except TypeError:  # a ground or look that is not hashable: made anew every frame
             key = None
@@ -401,7 +405,7 @@ def _core_scene(scene_or_cloud, kw: dict, camera, lod_pixels, max_error):
             scene = scene.with_look(kw["look"])
         if "ground" in kw:
             scene = scene.with_ground(kw["ground"])
-    rs, origin = scene.to_core(camera, lod_pixels, max_error)
+    rs, origin = scene.to_core(camera, lod_pixels, max_error, sides)
     share_scale = None
     if lod_pixels == "auto":
         share_scale = budget_scale(scene.bounds(), camera)

@@ -470,15 +470,18 @@ class Scene:
         level = min(self._extent(i)[2] for i in range(len(self.objects)))
         return center + (level - center @ self.up) * self.up
 
-    def to_core(self, camera, lod_pixels: float | str, max_error: float | None = None):
+    def to_core(self, camera, lod_pixels: float | str, max_error: float | None = None,
+                sides: str | None = None):
         """The C++ render scene and its local origin (float64): everything is re-centred on it
-        so that georeferenced scans keep float32 precision."""
+        so that georeferenced scans keep float32 precision. ``sides``: which sides of the
+        surfels show (:meth:`pointviz.SurfelScene.culls`; None: each tree's own)."""
         lo, hi = self.bounds()
         origin = 0.5 * (lo + hi)
         rs = _core.RenderScene()
         rs.scale = float(max(np.linalg.norm(hi - lo) * 0.5, 1e-12))
         for i, obj in enumerate(self.objects):
-            self.geometry(i).add_to(rs, origin, obj.material.to_core(), lod_pixels, max_error)
+            self.geometry(i).add_to(rs, origin, obj.material.to_core(), lod_pixels, max_error,
+                                    sides)
         if self.ground is not None:
             rs.set_ground(tuple(self.ground_point() - origin), tuple(self.up), self.ground.to_core())
         lights = self.lights if self.lights is not None else self.look.lights(camera, self.up)

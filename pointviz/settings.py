@@ -25,6 +25,8 @@ GROUNDS = ("auto", "matte", "mirror", "glossy", "none")
 LOOKS = ("auto", "studio", "outdoor", "flat")
 #: How the disks around a hit are blended (a :class:`pointviz.SurfelScene` option).
 INTERPOLATIONS = ("none", "paper", "smooth")
+#: Which sides of the surfels a frame shows (:mod:`pointviz.sides`).
+SIDES = ("auto", "one", "two")
 #: Largest seed: the core takes an unsigned 64-bit seed; a signed bound keeps it portable.
 MAX_SEED = 2**63 - 1
 #: The automatic level of detail's default error budget: mean FLIP of the frame against full
@@ -150,6 +152,10 @@ class RenderSettings:
         "flat (colours as scanned); auto: outdoor for terrain tiles, studio for objects "
         "(default: the scene's; auto for a cloud)", choices=LOOKS, kind=str, optional=True,
         objects="pointviz.scene.Look")
+    sides: str | None = setting(
+        None, "which sides of the surfels show: one (back faces culled), two, or auto: one "
+        "where they close a surface, else two (default: the scene's; auto for a cloud)",
+        choices=SIDES, kind=str, optional=True)
     denoise: bool | str = setting(
         False, "denoise with Open Image Denoise (the 'denoise' extra; True or a quality)",
         choices=(True, False, *DENOISE_QUALITIES), kind=bool, flag="--no-denoise",

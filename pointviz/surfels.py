@@ -298,12 +298,9 @@ class SurfelScene:
         self.last_stats: dict = {}
         #: cull="auto": the probe's share of back faces (pointviz.sides), None when not probed
         self.back_face_share = None
-        if auto_cull and knobs.get("tree") != "kdtree":
-            from . import sides
-
-            self.back_face_share = sides.back_face_share(self)
-            self._options.cull = (self.back_face_share is not None
-                                  and self.back_face_share <= sides.CLOSED_BACK_SHARE)
+        self._probed = False
+        if auto_cull:
+            self._options.cull = self.culls("auto")
 
     def _build_tree(self, cloud, held: dict, origin, leaf_size: int, box_depth: int,
                     consume: bool, wide: bool):
@@ -442,12 +439,32 @@ class SurfelScene:
         return cache[key]
 
     def add_to(self, render_scene, origin, material, lod_pixels: float | str,
-               max_error: float | None = None) -> None:
+               max_error: float | None = None, sides: str | None = None) -> None:
         """Add this tree to a core RenderScene whose frame is centred on ``origin`` (see
-        :class:`pointviz.geometry.Geometry`)."""
+        :class:`pointviz.geometry.Geometry`); ``sides`` as :meth:`culls` takes it."""
         offset = tuple(float(v) for v in (np.asarray(origin, dtype=np.float64) - self.origin))
-        render_scene.add_surfels(self._tree, self.trace_options(lod_pixels, max_error), offset,
-                                 material)
+        opts = self.trace_options(lod_pixels, max_error)
+        opts.cull = self.culls(sides)
+        render_scene.add_surfels(self._tree, opts, offset, material)
+
+    def culls(self, sides: str | None = None) -> bool:
+        """Whether back faces are culled when a frame asks for ``sides``: None, this scene's
+        own choice (:attr:`cull`); "one" yes; "two" no; "auto" when the surfels close a surface
+        (:func:`pointviz.sides.is_closed`, probed on first use unless ``cull="auto"`` did)."""
+        if sides is None:
+            return self.cull
+        if sides not in ("auto", "one", "two"):
+            raise InputError(f"sides: expected one of auto, one, two or None, got {sides!r}")
+        if sides != "auto":
+            return sides == "one"
+        if VARIANTS[self.variant].get("tree") == "kdtree":  # the paper's baseline: as built
+            return self.cull
+        from . import sides as sides_mod
+
+        if not self._probed:
+            self.back_face_share = sides_mod.back_face_share(self)
+            self._probed = True
+        return self.back_face_share is not None and self.back_face_share <= sides_mod.CLOSED_BACK_SHARE
 
     def options_key(self) -> tuple:
         """The traversal options' values (what :meth:`trace_options` copies): they are settable

@@ -191,22 +191,51 @@ def test_degenerate_clouds_keep_both_sides(points, radius):
     assert np.isfinite(frame.color).all()
 
 
-@pytest.mark.parametrize("hand_over", [True, False], ids=["render", "view"])
-def test_the_sides_option(tmp_path, hand_over):
+def test_a_frame_asks_for_its_sides():
+    """``render(..., sides=...)`` overrides each tree's own choice for that frame: "two" draws
+    what a two-sided scene draws, bit for bit, and "one" what a culled one does."""
+    cloud = torus(8000)
+    cam = pointviz.Camera.fit(cloud, width=96, height=72)
+    auto, both = pointviz.Scene([cloud]), pointviz.Scene([cloud], two_sided=True)
+    assert auto.geometry(0).cull is True and both.geometry(0).cull is False
+    kw = dict(spp=1, seed=3)
+
+    def same(a, b):
+        return all(np.array_equal(getattr(a, k), getattr(b, k))
+                   for k in ("color", "depth", "normal", "alpha"))
+
+    assert same(pointviz.render(auto, cam, sides="two", **kw), pointviz.render(both, cam, **kw))
+    assert same(pointviz.render(both, cam, sides="one", **kw), pointviz.render(auto, cam, **kw))
+    assert same(pointviz.render(both, cam, sides="auto", **kw), pointviz.render(auto, cam, **kw))
+    two = pointviz.render(auto, cam, sides="two", **kw)
+    one = pointviz.render(auto, cam, **kw)
+    assert (two.object_alpha > 0).sum() > (one.object_alpha > 0).sum()  # the rim's back faces
+    with pytest.raises(InputError, match="sides"):
+        pointviz.render(auto, cam, sides="three", **kw)
+
+
+def test_culls():
+    closed = pointviz.SurfelScene(sphere(3000), cull=False)
+    assert closed.back_face_share is None
+    assert closed.culls() is False and closed.culls("one") is True
+    assert closed.culls("auto") is True  # probed on first use
+    assert closed.back_face_share < 0.02
+    sheet = pointviz.SurfelScene(plane(3000), cull=True)
+    assert sheet.culls() is True and sheet.culls("auto") is False and sheet.culls("two") is False
+
+
+def test_the_sides_option():
     from pointviz.cli import build_parser
-    from pointviz.commands.common import make_scene_and_camera
+    from pointviz.commands.common import render_kwargs
+    from pointviz.viewer.model import ViewerSettings
 
-    ball, sheet = tmp_path / "ball.xyzn", tmp_path / "sheet.xyzn"
-    for path, cloud in ((ball, sphere(3000)), (sheet, plane(3000))):
-        np.savetxt(path, np.c_[cloud.points, cloud.normals], fmt="%.6f")
+    def parsed(*opts):
+        return render_kwargs(build_parser().parse_args(["render", "x.ply", "-o", "x.png", *opts]))
 
-    def cull(path, *opts):
-        args = build_parser().parse_args(["render", str(path), "-o", "x.png", *opts])
-        scene, _ = make_scene_and_camera(args, hand_over=hand_over)
-        return scene.geometry(0).cull
-
-    assert cull(ball) is True and cull(sheet) is False
-    assert cull(ball, "--sides", "two") is False
-    assert cull(sheet, "--sides", "one") is True
+    assert parsed()["sides"] is None
+    assert parsed("--sides", "two")["sides"] == "two"
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["render", str(ball), "-o", "x.png", "--sides", "three"])
+        parsed("--sides", "three")
+    assert ViewerSettings(sides="one").render_kwargs()["sides"] == "one"
+    with pytest.raises(InputError, match="sides"):
+        ViewerSettings(sides="both")

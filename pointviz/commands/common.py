@@ -27,10 +27,6 @@ def add_input_options(p) -> None:
                         "for depth-camera frames, else +y)")
 
 
-#: ``--sides``: the SurfelScenes' ``cull`` (pointviz.sides decides "auto").
-SIDES = {"auto": "auto", "one": True, "two": False}
-
-
 def parse_up(text: str | None):
     """``--up``: an axis name with an optional sign, or three numbers; None if not given."""
     if text is None:
@@ -59,9 +55,6 @@ def add_render_options(p) -> None:
                    help="directional light toward X,Y,Z (repeatable)")
     g.add_argument("--interpolation", choices=INTERPOLATIONS, default=None,
                    help="how disks around a hit are blended")
-    g.add_argument("--sides", choices=tuple(SIDES), default="auto",
-                   help="which sides of the surfels show: auto (default): one where they close a "
-                        "surface (back faces culled), both otherwise; one; two")
     for f in fields(RenderSettings):
         add_setting_option(g, f)
 
@@ -164,11 +157,8 @@ def make_scene_and_camera(args, prepare: bool = True, hand_over: bool = False):
     kw = {}
     if args.interpolation:
         kw["interpolation"] = args.interpolation
-    kw["cull"] = SIDES[getattr(args, "sides", "auto")]
     consume = hand_over and prepare and isinstance(loaded, PointCloud)
     if isinstance(loaded, Scene):
-        if kw["cull"] != "auto":
-            raise InputError("--sides: the built-in demo scene decides its own; it is for files")
         scene = loaded
         if lights is not None:
             scene = scene.replace(lights=lights)

@@ -23,7 +23,7 @@ COLOR_MODES = ("rgb", "normal", "height", "intensity")
 GROUNDS = ("none", "matte", "mirror")
 #: The render settings the viewer offers (ground and look are the scene's, see render_scene).
 RENDER_FIELDS = ("shadows", "reflections", "spp", "lod_pixels", "max_error", "seed", "threads",
-                 "denoise")
+                 "sides", "denoise")
 #: How the ray-traced frame is shown: next to the preview, or over it (toggled).
 DISPLAYS = ("side", "overlay")
 #: Most points drawn by the preview. Above this the preview shows a spatially even subset (one
@@ -96,6 +96,8 @@ class ViewerSettings:
         Direction toward the (single directional) light, relative to the scene's up.
     light_intensity : float
     ground : {"none", "matte", "mirror"}, or None to keep the input scene's own ground.
+    sides : {"auto", "one", "two"}, or None to keep the input scene's own (see
+        :func:`pointviz.render`).
     width, height : int
         Output size of the ray-traced frame; 0 follows the preview's size (and aspect).
     display : {"side", "overlay"}
@@ -120,6 +122,7 @@ class ViewerSettings:
     light_elevation_deg: float = DEFAULT_LIGHT_ELEVATION_DEG
     light_intensity: float = 1.1
     ground: str | None = "matte"
+    sides: str | None = None
     width: int = 0
     height: int = 0
     display: str = "side"

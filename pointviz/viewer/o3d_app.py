@@ -27,6 +27,7 @@ import numpy as np
 from .. import interrupt
 from ..errors import InputError, require
 from ..images import srgb_to_linear
+from ..settings import SIDES
 from . import model, o3d_display
 from .model import PREVIEW_BACKGROUND
 from .o3d_actions import ActionsMixin
@@ -196,6 +197,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.sl_az = self._slider(box, "Light azimuth", "light_azimuth_deg", -180, 180)
         self.sl_el = self._slider(box, "Light elevation", "light_elevation_deg", -10, 90)
         self.cmb_ground = self._combo(box, "Ground", "ground", ["scene", *model.GROUNDS])
+        self.cmb_sides = self._combo(box, "Sides", "sides", ["scene", *SIDES])
         self.num_width = self._number(box, "Width (0: view)", "width", True, 0, 8192)
         self.num_height = self._number(box, "Height (0: view)", "height", True, 0, 8192)
         self.cmb_display = self._combo(box, "Show frame", "display", list(model.DISPLAYS))
@@ -307,6 +309,7 @@ class O3DViewer(LiveMixin, ActionsMixin, AutomationMixin):
         self.sl_az.int_value = round(s.light_azimuth_deg)
         self.sl_el.int_value = round(s.light_elevation_deg)
         self.cmb_ground.selected_text = "scene" if s.ground is None else s.ground
+        self.cmb_sides.selected_text = "scene" if s.sides is None else s.sides
         self.num_width.int_value = s.width
         self.num_height.int_value = s.height
         self.cmb_display.selected_text = s.display
