@@ -88,8 +88,12 @@ def back_face_share(scene) -> float | None:
     return float(np.count_nonzero(facing > 0.0)) / float(np.count_nonzero(hit))
 
 
-def is_closed(scene) -> bool:
-    """Whether ``scene``'s surfels close a surface seen from outside (see the module's text):
-    at most CLOSED_BACK_SHARE of the probe's first hits are back faces."""
-    share = back_face_share(scene)
+def closed(share: float | None) -> bool:
+    """Whether a :func:`back_face_share` says the surface is closed: at most
+    CLOSED_BACK_SHARE of the probe's first hits are back faces (None: nothing was hit)."""
     return share is not None and share <= CLOSED_BACK_SHARE
+
+
+def is_closed(scene) -> bool:
+    """Whether ``scene``'s surfels close a surface seen from outside (see the module's text)."""
+    return closed(back_face_share(scene))

@@ -464,7 +464,7 @@ class SurfelScene:
         if not self._probed:
             self.back_face_share = sides_mod.back_face_share(self)
             self._probed = True
-        return self.back_face_share is not None and self.back_face_share <= sides_mod.CLOSED_BACK_SHARE
+        return sides_mod.closed(self.back_face_share)
 
     def options_key(self) -> tuple:
         """The traversal options' values (what :meth:`trace_options` copies): they are settable
