@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         r = measure(path, args)
         rows.append(r)
         share = "-" if r["back_face_share"] is None else f"{100 * r['back_face_share']:.2f}"
-        print(f"{r['file']:<58} {r['surfels']:>8} {share:>7} {'one' if r['one_sided'] else 'two':>5} "
+        sides = "one" if r["one_sided"] else "two"
+        print(f"{r['file']:<58} {r['surfels']:>8} {share:>7} {sides:>5} "
               f"{1e3 * r['probe_s']:8.1f} {r['probe_s'] / r['build_s']:7.2f}  "
               f"{r['two_sided_back_hits']} / {r['auto_back_hits']} (of {r['two_sided_hits']} / "
               f"{r['auto_hits']})", flush=True)

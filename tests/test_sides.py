@@ -92,8 +92,8 @@ def test_an_open_shell_is_seen_from_both_sides():
     # the upper half of a sphere: from below, its inside faces the rays
     c = sphere(8000)
     keep = c.points[:, 1] > 0.0
-    s = pointviz.SurfelScene(PointCloud(c.points[keep], normals=c.normals[keep], radii=c.radii[keep]),
-                             cull="auto")
+    shell = PointCloud(c.points[keep], normals=c.normals[keep], radii=c.radii[keep])
+    s = pointviz.SurfelScene(shell, cull="auto")
     assert s.back_face_share > 2 * sides.CLOSED_BACK_SHARE
     assert s.cull is False
 
@@ -186,8 +186,8 @@ def test_degenerate_clouds_keep_both_sides(points, radius):
     s = pointviz.SurfelScene(cloud, cull="auto")
     assert s.cull is False
     assert s.back_face_share is None or abs(s.back_face_share - 0.5) < 0.1
-    frame = pointviz.render(pointviz.Scene([cloud]), pointviz.Camera.fit(cloud, width=32, height=24),
-                            spp=1)
+    cam = pointviz.Camera.fit(cloud, width=32, height=24)
+    frame = pointviz.render(pointviz.Scene([cloud]), cam, spp=1)
     assert np.isfinite(frame.color).all()
 
 
