@@ -158,6 +158,27 @@ def test_worker_frame_equals_direct_render():
     assert box["progress"] >= 1
 
 
+def test_worker_frame_shows_the_sides_asked_for():
+    """The viewer's Sides setting reaches the tracer: on a closed torus (culled by its scene's
+    own choice) "two" adds the rim's back faces that "one" leaves out, and each frame is the
+    direct render's with that setting."""
+    from pointviz.shapes import torus
+
+    cloud = torus(6000)
+    scene = model.as_scene(cloud)
+    camera = Camera.fit(cloud, width=96, height=72)
+    covered = {}
+    for sides in ("one", "two"):
+        settings = model.ViewerSettings(spp=1, ground="none", sides=sides)
+        box = _run_worker(scene, settings, camera)
+        assert "error" not in box
+        frame = box["result"].frame
+        direct = render(model.render_scene(scene, settings), camera, **settings.render_kwargs())
+        np.testing.assert_array_equal(frame.color, direct.color)
+        covered[sides] = int((frame.object_alpha > 0).sum())
+    assert covered["two"] > covered["one"]
+
+
 def test_worker_cancel_reports_cancelled_and_ends():
     scene = model.as_scene(small_cloud())
     settings = model.ViewerSettings(spp=512)
