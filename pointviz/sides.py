@@ -10,12 +10,12 @@ default view). On an open surface (a terrain tile, one range scan, a depth-camer
 faces are the surface seen from behind, which culling would hide.
 
 :func:`back_face_share` casts rays at the tree from all around it with culling off and counts
-the first hits that are back faces; :func:`is_closed` calls the surface closed when they are at
+the first hits that are back faces; :func:`closed` calls the surface closed when they are at
 most CLOSED_BACK_SHARE of the hits. Measured on ``../shared/data`` (benchmarks/README.md,
-"Rims of closed scans: one-sided when the surface is closed"): reconstructions and registered
-scan sets of whole objects 0.2-2.5 % (Armadillo, the bunny's 10 scans, Lucy, the pepper, Spot,
-the teapot, the dragon's reconstruction), photogrammetry and scan sets with an unscanned base
-3-11.5 % (Demosthenes, the SfM owl and vase, the dragon's 15 scans), open data 24.6-60 % (the
+"Rims of closed scans: one side or two"): reconstructions and registered scan sets of whole
+objects 0.2-3 % (Armadillo, the bunny's 10 scans, Lucy, the pepper, Spot, the teapot, the
+dragon's reconstruction), photogrammetry and scan sets with an unscanned base or an opening
+3-11.2 % (Demosthenes, the SfM owl and vase, the dragon's 15 scans), open data 25-61 % (the
 drill's scan set, single range scans, depth-camera frames, LiDAR tiles). A surface closed with
 its normals pointing inward is not taken for closed (``horse_cyberware.ply``, a mesh saved
 inside out: 99 % before reading learnt to turn such meshes, :func:`pointviz.cloud.outward_faces`;
@@ -92,8 +92,3 @@ def closed(share: float | None) -> bool:
     """Whether a :func:`back_face_share` says the surface is closed: at most
     CLOSED_BACK_SHARE of the probe's first hits are back faces (None: nothing was hit)."""
     return share is not None and share <= CLOSED_BACK_SHARE
-
-
-def is_closed(scene) -> bool:
-    """Whether ``scene``'s surfels close a surface seen from outside (see the module's text)."""
-    return closed(back_face_share(scene))

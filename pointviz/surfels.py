@@ -143,7 +143,7 @@ class SurfelScene:
     lod, cull : bool, optional
         Level of detail (needs a pixel footprint at query time) and normal-cone culling.
         ``cull="auto"``: culling when the surfels close a surface seen from outside, and
-        two-sided otherwise (:func:`pointviz.sides.is_closed`: rays cast at the tree from all
+        two-sided otherwise (:mod:`pointviz.sides`: rays cast at the tree from all
         around it meet at most 15 % back faces; :attr:`back_face_share` keeps the share).
     box_depth : int or "auto" or "all", optional
         Tree levels above this use boxes, the rest spheres.
@@ -245,7 +245,7 @@ class SurfelScene:
         if auto_cull and cull != "auto":
             raise InputError(f"cull: expected True, False or 'auto', got {cull!r}")
         if cull is not None:
-            # "auto": decided once the tree is built (is_closed); the kdtree variant never culls
+            # "auto": decided once the tree is built (culls); the kdtree variant never culls
             knobs["cull"] = False if auto_cull else bool(cull)
         if box_depth is not None:
             knobs["box_depth"] = box_depth
@@ -450,7 +450,7 @@ class SurfelScene:
     def culls(self, sides: str | None = None) -> bool:
         """Whether back faces are culled when a frame asks for ``sides``: None, this scene's
         own choice (:attr:`cull`); "one" yes; "two" no; "auto" when the surfels close a surface
-        (:func:`pointviz.sides.is_closed`, probed on first use unless ``cull="auto"`` did)."""
+        (:func:`pointviz.sides.closed`, probed on first use unless ``cull="auto"`` did)."""
         if sides is None:
             return self.cull
         if sides not in ("auto", "one", "two"):
