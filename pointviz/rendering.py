@@ -209,6 +209,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
            max_error: float | None = DEFAULTS.max_error, seed: int = DEFAULTS.seed,
            threads: int | None = DEFAULTS.threads, progress=None, cancel=None,
            ground=DEFAULTS.ground, look=DEFAULTS.look, sides: str | None = DEFAULTS.sides,
+           exposure: float | None = DEFAULTS.exposure,
            denoise=DEFAULTS.denoise, background: bool = False, sample_offset: int = 0,
            sequence_spp: int | None = None, phase_times: bool = False) -> Frame:
     """Ray trace a frame.
@@ -250,6 +251,12 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
         Which sides of the surfels show: "one" culls back faces, "two" shows both, "auto" one
         where they close a surface seen from outside and two elsewhere (:mod:`pointviz.sides`).
         Default: each tree's own (a Scene built from clouds: "auto").
+    exposure : float, optional
+        The frame's exposure multiplier (``frame.exposure``: what :meth:`Frame.save` and the
+        denoiser apply). Default: the look's, automatic (the objects' mean luminance keyed to
+        ``pointviz.images.EXPOSURE_KEY``) for studio and outdoor, 1 for flat. Frames meant to
+        be seen together (a camera path, a comparison) should share one: each view's own
+        automatic exposure brightens or darkens the backdrop with what the objects show.
     denoise : bool, {"high", "balanced", "fast"} or pointviz.denoise.Denoiser
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
@@ -281,7 +288,8 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
 
     opts = RenderSettings(shadows=shadows, reflections=reflections, spp=spp,
                           lod_pixels=lod_pixels, max_error=max_error, seed=seed, threads=threads,
-                          ground=ground, look=look, sides=sides, denoise=denoise)
+                          ground=ground, look=look, sides=sides, exposure=exposure,
+                          denoise=denoise)
     quality = denoise_quality(opts.denoise)
     if quality is not None:
         check_available()  # before the expensive part
@@ -338,10 +346,13 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     stats["primary_rays_per_pixel"] = stats["primary_rays"] / (camera.width * camera.height)
     stats["settings"] = {"shadows": bool(shadows), "reflections": reflections, "spp": spp,
                          "lod_pixels": lod_pixels, "max_error": max_error, "seed": seed, "threads": threads,
-                         "look": scene_look.name, "denoise": quality or False}
+                         "look": scene_look.name, "exposure": opts.exposure,
+                         "denoise": quality or False}
     frame = Frame(bufs["color"], bufs["depth"], bufs["normal"], bufs["alpha"], stats, camera,
                   albedo=bufs["albedo"], object_alpha=bufs["object_alpha"])
-    if scene_look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
+    if opts.exposure is not None:
+        frame.exposure = opts.exposure
+    elif scene_look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
         from .images import auto_exposure
 
         frame.exposure = auto_exposure(frame.color, frame.object_alpha)

@@ -29,6 +29,9 @@ INTERPOLATIONS = ("none", "paper", "smooth")
 SIDES = ("auto", "one", "two")
 #: Largest seed: the core takes an unsigned 64-bit seed; a signed bound keeps it portable.
 MAX_SEED = 2**63 - 1
+#: Range of a given exposure multiplier (the automatic one stays within
+#: pointviz.images.EXPOSURE_RANGE): twenty stops either way are beyond any display's use.
+MIN_EXPOSURE, MAX_EXPOSURE = 1e-6, 1e6
 #: The automatic level of detail's default error budget: mean FLIP of the frame against full
 #: detail (benchmarks/README.md, "Issue 18": measured within it on analytic scenes and scans).
 DEFAULT_MAX_ERROR = 0.005
@@ -156,6 +159,10 @@ class RenderSettings:
         None, "which sides of the surfels show: one (back faces culled), two, or auto: one "
         "where they close a surface, else two (default: the scene's; auto for a cloud)",
         choices=SIDES, kind=str, optional=True)
+    exposure: float | None = setting(
+        None, "exposure multiplier of the frame (default: the look's: automatic for studio and "
+        "outdoor, 1 for flat; a camera path's frames share one, see pointviz.render_path)",
+        lo=MIN_EXPOSURE, hi=MAX_EXPOSURE, kind=float, optional=True, metavar="E")
     denoise: bool | str = setting(
         False, "denoise with Open Image Denoise (the 'denoise' extra; True or a quality)",
         choices=(True, False, *DENOISE_QUALITIES), kind=bool, flag="--no-denoise",

@@ -45,8 +45,8 @@ def test_render_path_writes_every_frame_as_the_single_frame_render(scene, path, 
     files = frame_files(out)
     assert [f.name for f in files] == [f"frame_{i:05d}.png" for i in range(path.n_frames)]
     assert summary["rendered"] == path.n_frames and summary["skipped"] == 0
-    for f, cam in zip(files, path.cameras()):
-        oracle = encode_png(render(scene, cam, **SETTINGS).to_srgb8())
+    for f, cam in zip(files, path.cameras()):  # every frame at the path's one exposure
+        oracle = encode_png(render(scene, cam, **SETTINGS, exposure=summary["exposure"]).to_srgb8())
         assert f.read_bytes() == oracle
     assert (out / MANIFEST_NAME).is_file()
     assert not leftovers(out)
@@ -225,3 +225,81 @@ def test_cli_orbit_and_path_file(scene, path, tmp_path, capsys):
                  *args]) == 2
     assert main(["path", "demo", "orbit", "-o", str(tmp_path / "m"), "--orbit", "0", *args]) == 2
     assert np.all([is_complete_png(f, W, H) for f in frame_files(tmp_path / "p")])
+
+
+def half_dark_sphere(n=6000):
+    """A sphere white on one side (x > 0) and nearly black on the other: its mean luminance,
+    and so a frame's own automatic exposure, changes by a factor of several around an orbit."""
+    from pointviz import PointCloud
+
+    ball = sphere(n, 0.6)
+    colors = np.where(ball.points[:, :1] > 0, 0.9, 0.04) * np.ones((1, 3))
+    return Scene([PointCloud(ball.points, ball.normals, colors=colors)], up=(0, 1, 0))
+
+
+def test_path_frames_share_one_metered_exposure(tmp_path):
+    """The frames' own automatic exposures would swing (the oracle: render() of each camera);
+    the path's frames share one, the geometric mean of the metering views' (an independent
+    render of each view that path_exposure picks), and the backdrop stays put."""
+    from math import exp, fsum, log
+
+    from PIL import Image
+
+    from pointviz.path.exposure import METER_SCALE, METER_SPP, meter_cameras
+
+    scene = half_dark_sphere()
+    path = CameraPath.orbit(scene, seconds=2.0, fps=6, width=W, height=H, easing="linear")  # 13
+    own = [render(scene, cam, **SETTINGS).exposure for cam in path.cameras()]
+    assert max(own) / min(own) > 2.0  # one exposure per frame would pump by that much
+    summary = render_path(scene, path, tmp_path, progress=False, **SETTINGS)
+    views = meter_cameras([c.to_dict() for c in path.cameras()])
+    assert len(views) == 9 and (views[0].width, views[0].height) == (W // 2, H // 2)
+    metering = {**SETTINGS, "spp": METER_SPP, "lod_pixels": 1.0 * METER_SCALE}
+    metered = [render(scene, v, **metering).exposure for v in views]
+    assert summary["exposure"] == pytest.approx(exp(fsum(map(log, metered)) / 9), rel=1e-12)
+    assert min(own) < summary["exposure"] < max(own)
+    frames = [np.asarray(Image.open(f)) for f in frame_files(tmp_path)]
+    corners = {tuple(f[0, 0]) for f in frames} | {tuple(f[0, -1]) for f in frames}
+    assert len(corners) == 1  # the backdrop, the same in every frame
+
+
+def test_path_exposure_given_resumed_and_recorded(tmp_path):
+    """A given exposure is every frame's and nothing is metered; a metered one is recorded in
+    the manifest and reused by a resumed run (even if metering would now say otherwise); a
+    folder rendered at another exposure is refused."""
+    import json
+
+    import pointviz.path.batch as batch
+
+    scene = half_dark_sphere(2000)
+    path = CameraPath.orbit(scene, seconds=1.0, fps=3, width=W, height=H)  # 4 frames
+    summary = render_path(scene, path, tmp_path / "given", progress=False, exposure=0.7, **SETTINGS)
+    assert summary["exposure"] == 0.7
+    for f, cam in zip(frame_files(tmp_path / "given"), path.cameras()):
+        assert f.read_bytes() == encode_png(render(scene, cam, **SETTINGS).to_srgb8(exposure=0.7))
+    out = tmp_path / "metered"
+    first = render_path(scene, path, out, progress=False, **SETTINGS)
+    assert json.loads((out / MANIFEST_NAME).read_text())["exposure"] == first["exposure"]
+    frame_files(out)[2].unlink()
+    real = batch.path_exposure
+    batch.path_exposure = lambda *a, **k: pytest.fail("a resumed render metered again")
+    try:
+        again = render_path(scene, path, out, progress=False, **SETTINGS)
+    finally:
+        batch.path_exposure = real
+    assert again["exposure"] == first["exposure"] and again["rendered"] == 1
+    with pytest.raises(InputError, match="the render settings changed"):
+        render_path(scene, path, out, progress=False, exposure=2.0, **SETTINGS)
+
+
+def test_meter_cameras_pick_the_ends_and_spread_evenly():
+    from pointviz.camera import Camera
+    from pointviz.path.exposure import METER_VIEWS, meter_cameras
+
+    cams = [Camera(eye=(float(i), 0.0, 5.0), target=(0.0, 0.0, 0.0), width=10, height=7).to_dict()
+            for i in range(40)]
+    picked = [round(c.eye[0]) for c in meter_cameras(cams)]
+    assert len(picked) == METER_VIEWS and picked[0] == 0 and picked[-1] == 39
+    assert max(np.diff(picked)) - min(np.diff(picked)) <= 1
+    assert [(c.width, c.height) for c in meter_cameras(cams[:1])] == [(5, 4)]
+    assert [round(c.eye[0]) for c in meter_cameras(cams[:3])] == [0, 1, 2]

@@ -112,6 +112,22 @@ def test_live_frames_match_direct_renders():
     assert errors.empty()
 
 
+def test_a_given_exposure_is_kept_by_moving_and_accumulated_frames():
+    """The accumulated still frame re-meters the automatic exposure over all its samples, but
+    an exposure the settings give is the user's: every live frame keeps it."""
+    scene, cam = small_scene(), camera(64, 48)
+    lr, frames, errors = collect(scene, threads=2, denoise=False)
+    try:
+        lr.update(cam, dict(OPTS, exposure=0.8))
+        assert next_frame(frames).frame.exposure == 0.8
+        still = next_frame(frames, lambda f: not f.moving and f.spp >= 4)
+        assert still.frame.exposure == 0.8
+        assert render(scene, cam, spp=still.spp, **OPTS).exposure != 0.8  # not the automatic one
+    finally:
+        assert lr.shutdown()
+    assert errors.empty()
+
+
 class BlockingRender:
     """render() that, for the cameras it is told to block, holds until cancelled (no sleeps:
     the test knows the frame is in flight through ``started``)."""

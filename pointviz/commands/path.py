@@ -90,7 +90,8 @@ def run(args) -> int:
         f"{summary['workers']} workers at {summary['scheduler']}")
     print(f"{args.output}: {summary['frames']} frames ({summary['rendered']} rendered, "
           f"{summary['skipped']} already there) in {summary['seconds']:.1f} s on {where}"
-          + (f", {summary['fps']:.2f} frames/s" if summary["rendered"] else ""))
+          + (f", {summary['fps']:.2f} frames/s" if summary["rendered"] else "")
+          + f", exposure {summary['exposure']:.3g}")
     if summary["video"]:
         print(f"{summary['video']}: {summary['frames']} frames at "
               f"{args.fps or path.fps:g} fps")

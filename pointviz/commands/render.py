@@ -12,8 +12,6 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="output image (.png or .exr)")
     add_render_options(p)
     p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth")
-    p.add_argument("--exposure", type=float, default=None,
-                   help="exposure multiplier (default: the look's, automatic for studio/outdoor)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.add_argument("--progress", action="store_true", help="show progress even when not a terminal")
     # nothing is left to clean up once run() returns: the PNG is written and renamed into place
@@ -41,7 +39,7 @@ def run(args) -> int:
     finally:
         if setup is not None:  # (done long before, unless the run failed early)
             setup.join()
-    frame.save(args.output, bits=args.bits, exposure=args.exposure, overwrite=args.overwrite)
+    frame.save(args.output, bits=args.bits, overwrite=args.overwrite)  # at frame.exposure
     s = frame.stats
     print(f"{args.output}: {camera.width}x{camera.height}, {s['seconds']:.2f} s, "
           f"{s['rays_per_second'] / 1e6:.2f} Mrays/s")

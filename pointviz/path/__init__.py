@@ -6,6 +6,7 @@ Modules, in the direction data flows:
 * :mod:`~pointviz.path.keyframes`: :class:`Keyframe` and the interpolation of a keyframe list;
 * :mod:`~pointviz.path.presets`: orbit, turntable and fly-through keyframes;
 * :mod:`~pointviz.path.camera_path`: :class:`CameraPath` (keyframes, frames, JSON files);
+* :mod:`~pointviz.path.exposure`: the one exposure a path's frames share;
 * :mod:`~pointviz.path.batch`: :func:`render_path`, resumable, in this process or on Dask
   (:mod:`pointviz.distributed`), with the video written by :mod:`pointviz.video`.
 

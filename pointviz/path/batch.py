@@ -29,9 +29,10 @@ from ..files import atomic_write_text, json_text, read_json_file
 from ..frames import frame_png, is_complete_png
 from ..interrupt import stage
 from ..progress import ProgressBar
-from ..settings import RenderSettings
+from ..settings import MAX_EXPOSURE, MIN_EXPOSURE, RenderSettings
 from ..values import check_image_size as _size
 from .camera_path import CameraPath
+from .exposure import path_exposure
 from .keyframes import check_fps
 
 #: ``scheduler`` value that renders in this process (as does None).
@@ -48,7 +49,13 @@ FRAME_GLOB = "frame_*.png"
 #: The manifest that ties ``out_dir`` to one scene, camera sequence and render settings.
 MANIFEST_NAME = "pointviz_path.json"
 MANIFEST_FORMAT = "pointviz.path_render"
-MANIFEST_VERSION = 1
+#: 2: frames share one exposure (``exposure``: metered, or the settings'); 1 exposed each frame
+#: on its own, and its frames are not mixed with a newer render's.
+MANIFEST_VERSION = 2
+#: What must match for a folder's frames to be this render's (what each key means, in words).
+MANIFEST_KEYS = {"version": "the manifest's version", "scene": "the scene",
+                 "cameras": "the camera path or image size", "settings": "the render settings",
+                 "n_frames": "the frame count", "exposure": "the exposure"}
 
 
 def _settings_of(render_kwargs: dict) -> dict:
@@ -100,13 +107,13 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
         if old is not None and not isinstance(old, dict):
             old, reason = None, f"its manifest {mpath.name} is not a JSON object"
         if old is not None:
-            changed = [k for k in ("scene", "cameras", "settings", "n_frames")
-                       if old.get(k) != manifest[k]]
+            # the exposure last: a metered one follows from the rest
+            changed = [k for k in MANIFEST_KEYS if old.get(k) != manifest[k]]
+            if len(changed) > 1 and "exposure" in changed:
+                changed.remove("exposure")
             if changed:
-                what = {"scene": "the scene", "cameras": "the camera path or image size",
-                        "settings": "the render settings", "n_frames": "the frame count"}
                 reason = ("it holds frames of a different render (" +
-                          ", ".join(what[k] for k in changed) + " changed)")
+                          ", ".join(MANIFEST_KEYS[k] for k in changed) + " changed)")
             elif not resume and frames:
                 reason = "it holds frames of this render and resume=False"
     elif frames:
@@ -120,6 +127,23 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
     for stale in out.glob(".frame_*.part"):  # left by a process killed mid-write
         stale.unlink()
     atomic_write_text(mpath, json_text(manifest), overwrite=True)
+
+
+def _recorded_exposure(out: Path, manifest: dict) -> float | None:
+    """The exposure the manifest in ``out`` records for the render ``manifest`` describes (all
+    but its exposure), or None: no such manifest, or one of another render."""
+    mpath = out / MANIFEST_NAME
+    if not mpath.is_file():
+        return None
+    try:
+        old = read_json_file(mpath)
+    except (InputError, FileFormatError):
+        return None
+    if not isinstance(old, dict) or any(old.get(k) != v for k, v in manifest.items()):
+        return None
+    value = old.get("exposure")
+    ok = isinstance(value, float) and MIN_EXPOSURE <= value <= MAX_EXPOSURE
+    return value if ok else None
 
 
 def _render_here(scene: Any, jobs: list[tuple[int, dict]], render_kwargs: dict, write: Any,
@@ -227,8 +251,12 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
         are kept and a rerun resumes after them.
     **render_kwargs
         Options of :func:`pointviz.render` (spp, shadows, reflections, lod_pixels, seed,
-        threads, ground). The same seed is used for every frame: the sampling pattern is fixed
-        on screen, which avoids frame-to-frame noise.
+        threads, ground, exposure). The same seed is used for every frame: the sampling
+        pattern is fixed on screen, which avoids frame-to-frame noise. Every frame is shown at
+        one **exposure**: ``exposure`` if given, else the look's automatic exposure metered
+        once over the path (:func:`pointviz.path.exposure.path_exposure`, in this process, before
+        the frames; recorded in the manifest and reused when the render resumes), so that the
+        backdrop does not brighten and darken with what each view shows.
 
     Returns
     -------
@@ -237,7 +265,7 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
         ``fps`` (rendered frames per second of it), ``video_seconds``, ``out_dir``, ``video``,
         ``scheduler`` ("serial" or the scheduler address), ``workers``, ``scene_builds``
         (scene builds per worker pid) and ``startup_seconds`` (cluster start or connection and
-        scene scatter, included in ``seconds``).
+        scene scatter, included in ``seconds``), ``exposure`` (the frames').
     """
     from ..distributed import render_frames
     from ..images import atomic_write_bytes
@@ -266,6 +294,13 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
                 "cameras": _digest(cameras), "settings": settings, "n_frames": len(cameras),
                 "width": w, "height": h}
     out = Path(out_dir)
+    exposure = settings["exposure"]
+    if exposure is None:  # one for every frame: the one recorded by an earlier run, or metered
+        exposure = _recorded_exposure(out, manifest) if resume else None
+        if exposure is None:
+            exposure = path_exposure(scene, cameras, render_kwargs, cancel=is_cancelled)
+    manifest["exposure"] = exposure
+    render_kwargs = {**render_kwargs, "exposure": exposure}
     _prepare_out_dir(out, manifest, resume, overwrite)
     files = [out / FRAME_NAME.format(i) for i in range(len(cameras))]
     todo = [i for i, f in enumerate(files) if not is_complete_png(f, w, h)]
@@ -311,4 +346,4 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
     return {"frames": len(cameras), "rendered": rendered, "skipped": skipped,
             "seconds": seconds, "fps": rendered / seconds if rendered and seconds > 0 else 0.0,
             "video_seconds": video_seconds, "out_dir": str(out),
-            "video": None if video is None else str(video), **info}
+            "video": None if video is None else str(video), "exposure": exposure, **info}

@@ -495,7 +495,8 @@ class _Accumulator:
         out = Frame(m["color"], self.depth, self.normal, m["alpha"], stats, self.camera,
                     albedo=m.get("albedo"), object_alpha=m.get("object_alpha"),
                     exposure=last.exposure)
-        if last.exposure != 1.0 or stats.get("auto_exposure"):
+        given = stats.get("settings", {}).get("exposure")  # the user's: kept as it is
+        if given is None and (last.exposure != 1.0 or stats.get("auto_exposure")):
             out.exposure = auto_exposure(out.color, out.object_alpha)
         return out
 

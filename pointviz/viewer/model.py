@@ -23,7 +23,7 @@ COLOR_MODES = ("rgb", "normal", "height", "intensity")
 GROUNDS = ("none", "matte", "mirror")
 #: The render settings the viewer offers (ground and look are the scene's, see render_scene).
 RENDER_FIELDS = ("shadows", "reflections", "spp", "lod_pixels", "max_error", "seed", "threads",
-                 "sides", "denoise")
+                 "sides", "exposure", "denoise")
 #: How the ray-traced frame is shown: next to the preview, or over it (toggled).
 DISPLAYS = ("side", "overlay")
 #: Most points drawn by the preview. Above this the preview shows a spatially even subset (one
@@ -103,6 +103,9 @@ class ViewerSettings:
     display : {"side", "overlay"}
     seed : int
     threads : int or None
+    exposure : float or None
+        Exposure multiplier of the ray-traced frame; None: the look's (automatic for studio
+        and outdoor).
     denoise : bool
         Denoise the ray-traced frame (Open Image Denoise, the ``denoise`` extra).
     up : (3,) float or None
@@ -128,6 +131,7 @@ class ViewerSettings:
     display: str = "side"
     seed: int = DEFAULTS.seed
     threads: int | None = DEFAULTS.threads
+    exposure: float | None = DEFAULTS.exposure
     denoise: bool = DEFAULTS.denoise
     up: tuple | None = None
 
