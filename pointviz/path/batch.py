@@ -87,36 +87,46 @@ def _digest(obj: Any) -> str:
     return hashlib.sha256(json_text(obj).encode()).hexdigest()
 
 
-def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -> None:
+def _read_manifest(out: Path) -> tuple[dict | None, str | None]:
+    """The manifest in ``out``, or None, with why it is unusable when it is there but unusable
+    (unreadable, not a JSON object)."""
+    mpath = out / MANIFEST_NAME
+    if not mpath.exists():
+        return None, None
+    try:
+        old = read_json_file(mpath)
+    except (InputError, FileFormatError) as exc:
+        return None, f"its manifest {mpath.name} is unreadable ({exc})"
+    if not isinstance(old, dict):
+        return None, f"its manifest {mpath.name} is not a JSON object"
+    return old, None
+
+
+def _prepare_out_dir(out: Path, manifest: dict, old: dict | None, unusable: str | None,
+                     resume: bool, overwrite: bool) -> None:
     """Create ``out`` or check that its frames belong to this render; write the manifest.
 
-    A folder holding frames of another render (another scene, path or settings) is refused
-    unless ``overwrite``, which deletes those frames (only ``frame_*.png`` and the manifest).
+    ``old``, ``unusable``: what :func:`_read_manifest` found in ``out``. A folder holding frames
+    of another render (another scene, path or settings) is refused unless ``overwrite``, which
+    deletes those frames (only ``frame_*.png`` and the manifest).
     """
     if out.exists() and not out.is_dir():
         raise InputError(f"out_dir: {out} is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)
     mpath = out / MANIFEST_NAME
     frames = sorted(out.glob(FRAME_GLOB))
-    reason = None
-    if mpath.exists():
-        try:
-            old = read_json_file(mpath)
-        except (InputError, FileFormatError) as exc:
-            old, reason = None, f"its manifest {mpath.name} is unreadable ({exc})"
-        if old is not None and not isinstance(old, dict):
-            old, reason = None, f"its manifest {mpath.name} is not a JSON object"
-        if old is not None:
-            # the exposure last: a metered one follows from the rest
-            changed = [k for k in MANIFEST_KEYS if old.get(k) != manifest[k]]
-            if len(changed) > 1 and "exposure" in changed:
-                changed.remove("exposure")
-            if changed:
-                reason = ("it holds frames of a different render (" +
-                          ", ".join(MANIFEST_KEYS[k] for k in changed) + " changed)")
-            elif not resume and frames:
-                reason = "it holds frames of this render and resume=False"
-    elif frames:
+    reason = unusable
+    if old is not None:
+        # the exposure last: a metered one follows from the rest
+        changed = [k for k in MANIFEST_KEYS if old.get(k) != manifest[k]]
+        if len(changed) > 1 and "exposure" in changed:
+            changed.remove("exposure")
+        if changed:
+            reason = ("it holds frames of a different render (" +
+                      ", ".join(MANIFEST_KEYS[k] for k in changed) + " changed)")
+        elif not resume and frames:
+            reason = "it holds frames of this render and resume=False"
+    elif unusable is None and frames:
         reason = f"it holds {len(frames)} frame files but no {MANIFEST_NAME}"
     if reason is not None:
         if not overwrite:
@@ -129,17 +139,10 @@ def _prepare_out_dir(out: Path, manifest: dict, resume: bool, overwrite: bool) -
     atomic_write_text(mpath, json_text(manifest), overwrite=True)
 
 
-def _recorded_exposure(out: Path, manifest: dict) -> float | None:
-    """The exposure the manifest in ``out`` records for the render ``manifest`` describes (all
-    but its exposure), or None: no such manifest, or one of another render."""
-    mpath = out / MANIFEST_NAME
-    if not mpath.is_file():
-        return None
-    try:
-        old = read_json_file(mpath)
-    except (InputError, FileFormatError):
-        return None
-    if not isinstance(old, dict) or any(old.get(k) != v for k, v in manifest.items()):
+def _recorded_exposure(old: dict | None, manifest: dict) -> float | None:
+    """The exposure an earlier manifest ``old`` records for the render ``manifest`` describes
+    (all but its exposure), or None: no manifest, or one of another render."""
+    if old is None or any(old.get(k) != v for k, v in manifest.items()):
         return None
     value = old.get("exposure")
     ok = isinstance(value, float) and MIN_EXPOSURE <= value <= MAX_EXPOSURE
@@ -294,14 +297,15 @@ def render_path(scene_or_cloud: Any, path: Any, out_dir: str | os.PathLike, *,
                 "cameras": _digest(cameras), "settings": settings, "n_frames": len(cameras),
                 "width": w, "height": h}
     out = Path(out_dir)
+    old, unusable = _read_manifest(out)
     exposure = settings["exposure"]
     if exposure is None:  # one for every frame: the one recorded by an earlier run, or metered
-        exposure = _recorded_exposure(out, manifest) if resume else None
+        exposure = _recorded_exposure(old, manifest) if resume else None
         if exposure is None:
             exposure = path_exposure(scene, cameras, render_kwargs, cancel=is_cancelled)
     manifest["exposure"] = exposure
     render_kwargs = {**render_kwargs, "exposure": exposure}
-    _prepare_out_dir(out, manifest, resume, overwrite)
+    _prepare_out_dir(out, manifest, old, unusable, resume, overwrite)
     files = [out / FRAME_NAME.format(i) for i in range(len(cameras))]
     todo = [i for i, f in enumerate(files) if not is_complete_png(f, w, h)]
     skipped = len(cameras) - len(todo)
