@@ -303,3 +303,27 @@ def test_meter_cameras_pick_the_ends_and_spread_evenly():
     assert max(np.diff(picked)) - min(np.diff(picked)) <= 1
     assert [(c.width, c.height) for c in meter_cameras(cams[:1])] == [(5, 4)]
     assert [round(c.eye[0]) for c in meter_cameras(cams[:3])] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("given, metered", [({}, 0.5), ({"lod_pixels": 4}, 2.0),
+                                            ({"lod_pixels": 0}, 0.0), ({"lod_pixels": "auto"}, "auto")])
+def test_path_exposure_meters_with_the_threshold_scaled(monkeypatch, given, metered):
+    """Each metering view takes the frames' settings at half size, one sample and no denoiser;
+    a numeric threshold, the default one included, is halved with the size (the same nodes
+    stop), the budget's "auto" is kept."""
+    import pointviz.rendering
+    from pointviz.path.exposure import METER_SPP, path_exposure
+
+    seen = []
+
+    def fake_render(scene, cam, cancel=None, **kw):
+        seen.append(kw)
+        return type("F", (), {"exposure": 0.5})()
+
+    monkeypatch.setattr(pointviz.rendering, "render", fake_render)
+    cams = [c.to_dict() for c in CameraPath.orbit(half_dark_sphere(500), seconds=1.0, fps=3,
+                                                   width=W, height=H).cameras()]
+    assert path_exposure(None, cams, {"spp": 8, "denoise": True, **given}) == pytest.approx(0.5)
+    assert len(seen) == len(cams)
+    assert all(kw["lod_pixels"] == metered and kw["spp"] == METER_SPP and kw["denoise"] is False
+               and kw["exposure"] is None for kw in seen)

@@ -50,11 +50,12 @@ def path_exposure(scene: Any, cameras: list[dict], render_kwargs: dict, cancel: 
     does not enter), so a resumed or distributed render finds the same value.
     """
     from ..rendering import render
+    from ..settings import RenderSettings
 
-    kw = dict(render_kwargs, spp=METER_SPP, denoise=False, exposure=None)
-    lod = kw.get("lod_pixels")
-    if isinstance(lod, (int, float)) and not isinstance(lod, bool):
-        kw["lod_pixels"] = float(lod) * METER_SCALE
+    # the settings in full: a threshold left at its default is scaled too
+    opts = RenderSettings.from_kwargs(render_kwargs, "render_path")
+    lod = opts.lod_pixels if opts.lod_pixels == "auto" else opts.lod_pixels * METER_SCALE
+    kw = opts.replace(spp=METER_SPP, denoise=False, exposure=None, lod_pixels=lod).render_kwargs()
     logs = [math.log(render(scene, cam, cancel=cancel, **kw).exposure)
             for cam in meter_cameras(cameras)]
     return math.exp(math.fsum(logs) / len(logs))
