@@ -3,8 +3,8 @@
 :func:`load` picks a reader by extension (:mod:`pointviz.readers.registry`):
 
 =====================================  =================================================
-``.ply .pcd .xyz .xyzn .xyzrgb``       the core's table reader (PLY meshes, compressed
-                                       PCD and ``.pts`` through Open3D)
+``.ply .pcd .xyz .xyzn .xyzrgb``       the core's table and face readers (``.pts`` and PLY
+                                       meshes of unusual layout through Open3D)
 ``.obj .off .stl``                     Open3D triangle meshes
 ``.glb .gltf``                         trimesh (scenes are flattened with their transforms)
 ``.las .laz``                          laspy (LAZ through lazrs, decompressed in parallel)

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "pointviz/progress.h"
+#include "pointviz/readers/faces.h"
 #include "pointviz/readers/lzf.h"
 #include "pointviz/readers/table.h"
 
@@ -39,6 +40,15 @@ inline std::vector<pointviz::Table> read_tables_joined_released(
     std::vector<pointviz::Table> out;
     nb::gil_scoped_release release;
     pointviz::read_tables_joined(specs, joined, out, threads, progress);
+    return out;
+}
+
+/// read_faces with the GIL released.
+inline pointviz::Faces read_faces_released(const pointviz::FaceSpec &spec,
+                                           pointviz::Progress &progress) {
+    pointviz::Faces out;
+    nb::gil_scoped_release release;
+    pointviz::read_faces(spec, out, progress);
     return out;
 }
 
@@ -101,6 +111,21 @@ inline void bind_readers(nb::module_ &m) {
         .def_rw("grid_cols", &TableSpec::grid_cols)
         .def_rw("grid_count", &TableSpec::grid_count)
         .def_rw("grid_index", &TableSpec::grid_index);
+    nb::class_<pointviz::FaceProperty>(m, "FaceProperty")
+        .def(nb::init<>())
+        .def_rw("list", &pointviz::FaceProperty::list)
+        .def_rw("count", &pointviz::FaceProperty::count)
+        .def_rw("item", &pointviz::FaceProperty::item);
+    nb::class_<pointviz::FaceSpec>(m, "FaceSpec")
+        .def(nb::init<>())
+        .def_rw("path", &pointviz::FaceSpec::path)
+        .def_rw("offset", &pointviz::FaceSpec::offset)
+        .def_rw("skip_lines", &pointviz::FaceSpec::skip_lines)
+        .def_rw("encoding", &pointviz::FaceSpec::encoding)
+        .def_rw("properties", &pointviz::FaceSpec::properties)
+        .def_rw("indices", &pointviz::FaceSpec::indices)
+        .def_rw("faces", &pointviz::FaceSpec::faces)
+        .def_rw("vertices", &pointviz::FaceSpec::vertices);
     nb::exception<pointviz::TruncatedData>(m, "TruncatedData", PyExc_ValueError);
     nb::exception<pointviz::MalformedData>(m, "MalformedData", PyExc_ValueError);
 
@@ -133,6 +158,24 @@ inline void bind_readers(nb::module_ &m) {
     "As read_tables, every spec's rows in one array, one spec's after the other's (each spec "
     "needs a row count, all the same wanted columns). Returns (values, dicts): values "
     "((total rows, len(wanted)) float64) and per spec the dict of read_tables without values.");
+    m.def("read_faces", [](const pointviz::FaceSpec &spec) {
+        pointviz::Progress progress;
+        pointviz::Faces faces = read_faces_released(spec, progress);
+        auto *buf = new std::vector<int32_t>(std::move(faces.triangles));
+        nb::capsule owner(buf, [](void *p) noexcept {
+            delete static_cast<std::vector<int32_t> *>(p);
+        });
+        size_t shape[2] = {buf->size() / 3, 3};
+        nb::dict d;
+        d["triangles"] = nb::cast(nb::ndarray<nb::numpy, int32_t>(
+            buf->empty() ? nullptr : buf->data(), 2, shape, owner));
+        d["polygons"] = faces.polygons;
+        return d;
+    }, "spec"_a,
+    "Read the PLY face records a FaceSpec describes. Returns a dict: triangles ((m, 3) int32, "
+    "polygons of n > 3 corners as fans of n - 2) and polygons (how many records had more than "
+    "three corners). TruncatedData / MalformedData (naming the face) when the data is not what "
+    "the spec says.");
     m.def("lzf_decompress", [](nb::bytes data, size_t size) {
         std::unique_ptr<uint8_t[]> buf(new uint8_t[size > 0 ? size : 1]);
         {

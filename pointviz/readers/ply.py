@@ -1,6 +1,7 @@
 """PLY: header forensics (truncated files, lying counts, a wrong format line, crafted face lists
-that crash Open3D) and the point reader, which reads the vertex rows in the core at disk speed.
-Meshes (PLY files with faces) go through Open3D after the same checks."""
+that crash Open3D) and the readers of points and meshes, which read the vertex rows and the face
+records in the core at disk speed. Meshes of another layout (faces before the vertices, vertex
+lists) go through Open3D after the same checks."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from ..cloud import PointCloud
 from ..errors import FileFormatError, require
 from ..validate import check_points_fit
 from . import table
-from .common import cloud_from_o3d_points, mesh_from_o3d, point_cloud, quiet_open3d
+from .. import _core
+from .common import cloud_from_o3d_points, mesh_cloud, mesh_from_o3d, point_cloud, quiet_open3d
 
 # PLY property sizes in bytes
 _PLY_SIZES = {
@@ -141,14 +143,7 @@ def _check_ply_complete(path: Path, header: dict) -> None:
             )
         _check_ply_ascii_rows(path, data, elements)
         return
-    with open(path, "rb") as fh:
-        fh.seek(header["header_bytes"])
-        probe = fh.read(_PLY_TEXT_PROBE)
-    if len(probe) >= _PLY_TEXT_MIN and not probe.translate(None, _PLY_TEXT_BYTES) and b"\n" in probe:
-        raise FileFormatError(
-            f"{path}: the PLY header says {header['format']} but the data is ASCII text "
-            "(the header's format line is wrong)"
-        )
+    _check_binary_not_text(path, header)
     need = header["header_bytes"]
     for name, count, props in elements:
         row = 0
@@ -176,6 +171,18 @@ def _check_ply_complete(path: Path, header: dict) -> None:
                 f"(at least {extra // last_row} more '{elements[-1][0]}' rows) beyond the "
                 f"{sum(c for _, c, _ in elements)} rows the header declares"
             )
+
+
+def _check_binary_not_text(path: Path, header: dict) -> None:
+    """Raise if a binary PLY's data is really ASCII text (a wrong format line)."""
+    with open(path, "rb") as fh:
+        fh.seek(header["header_bytes"])
+        probe = fh.read(_PLY_TEXT_PROBE)
+    if len(probe) >= _PLY_TEXT_MIN and not probe.translate(None, _PLY_TEXT_BYTES) and b"\n" in probe:
+        raise FileFormatError(
+            f"{path}: the PLY header says {header['format']} but the data is ASCII text "
+            "(the header's format line is wrong)"
+        )
 
 
 def _face_error(path, k, what):
@@ -305,14 +312,15 @@ _COLOR_SCALE = {"char": 127.0, "int8": 127.0, "uchar": 255.0, "uint8": 255.0,
                 "uint": 4294967295.0, "uint32": 4294967295.0}  # fmt: skip
 
 
-def points_plan(path: Path, affine=None) -> PointsPlan | None:
+def points_plan(path: Path, affine=None, header: dict | None = None) -> PointsPlan | None:
     """Check a PLY file and plan reading its points in the core.
 
     ``affine`` ``(m, t)`` places the points as they are read (``p @ m + t``, see
     :func:`table.spec`). Returns None for what the core path does not cover (meshes, vertex elements with lists or
-    after other elements): :func:`read_ply` then uses Open3D after the same checks.
+    after other elements): :func:`read_ply` then uses Open3D after the same checks. ``header``:
+    the file's parsed header, when the caller has it.
     """
-    header = _ply_header(path)
+    header = _ply_header(path) if header is None else header
     elements = header["elements"]
     counts = {name: count for name, count, _ in elements}
     nvert = counts.get("vertex", 0)
@@ -331,6 +339,13 @@ def points_plan(path: Path, affine=None) -> PointsPlan | None:
         _check_ascii_size(path, header, path.stat().st_size)
     else:
         _check_ply_complete(path, header)
+    return _vertex_plan(path, header, affine)
+
+
+def _vertex_plan(path: Path, header: dict, affine) -> PointsPlan:
+    """The PointsPlan of a checked PLY file's vertex rows (its first element, scalars only)."""
+    elements = header["elements"]
+    nvert, vprops, others = elements[0][1], elements[0][2], elements[1:]
     check_points_fit(nvert, str(path))
     names = [n for n, _ in vprops]
     want = [n for n in ("x", "y", "z") if n in names]
@@ -411,9 +426,14 @@ def core_error(path: Path, fmt: str, exc: Exception) -> FileFormatError:
 
 
 def read_ply(path: Path, sample, rng) -> PointCloud:
-    """A PLY file: points (with normals and colours when present) in the core, meshes through
-    Open3D."""
-    plan = points_plan(path)
+    """A PLY file: points (with normals and colours when present) in the core; meshes in the
+    core too when their vertices come first and their faces right after them (the usual
+    layout), else through Open3D."""
+    header = _ply_header(path)
+    if any(name == "face" and count > 0 for name, count, _ in header["elements"]):
+        mesh = mesh_plan(path, header)
+        return _load_ply(path, sample, rng) if mesh is None else read_mesh(mesh, sample, rng)
+    plan = points_plan(path, header=header)
     if plan is None:
         return _load_ply(path, sample, rng)
     try:
@@ -423,6 +443,88 @@ def read_ply(path: Path, sample, rng) -> PointCloud:
     arrays = points_from_table(plan, data)
     arrays.pop("grid")  # one scan's grid: used by registrations (conf.py), which know the scans
     return point_cloud(path, **arrays, sample=sample, rng=rng)
+
+
+#: Names of a face element's vertex-index list.
+_FACE_INDEX_NAMES = ("vertex_indices", "vertex_index")
+
+
+@dataclass
+class MeshPlan:
+    """How the core reads a PLY mesh: its vertex rows (as for points) and its face records."""
+
+    points: PointsPlan
+    faces: object  # _core.FaceSpec of the face records
+
+
+def mesh_plan(path: Path, header: dict) -> MeshPlan | None:
+    """Check a PLY mesh and plan reading it in the core, or None for a layout the core does not
+    read (anything but scalar vertex properties first and a face element with one vertex-index
+    list right after them; elements after the faces are ignored): :func:`read_ply` then uses
+    Open3D after its checks."""
+    elements = header["elements"]
+    if len(elements) < 2 or elements[0][0] != "vertex" or elements[1][0] != "face":
+        return None
+    nvert, vprops = elements[0][1], elements[0][2]
+    nface, fprops = elements[1][1], elements[1][2]
+    lists = [k for k, (name, t) in enumerate(fprops)
+             if isinstance(t, tuple) and name in _FACE_INDEX_NAMES]
+    if nvert == 0 or any(isinstance(t, tuple) for _, t in vprops) or len(lists) != 1:
+        return None
+    if header["format"] == "ascii":
+        _check_ascii_size(path, header, path.stat().st_size)
+    else:
+        _check_binary_not_text(path, header)
+    points = _vertex_plan(path, header, None)
+    size = path.stat().st_size
+    if nface > size:  # every face record takes at least one byte
+        raise FileFormatError(f"{path}: truncated PLY: the header declares {nface} faces, the "
+                              f"file has only {size} bytes")
+    spec = _core.FaceSpec()
+    spec.path = str(path)
+    spec.encoding = getattr(_core.Encoding, header["format"])
+    if header["format"] == "ascii":
+        spec.offset, spec.skip_lines = header["header_bytes"], nvert
+    else:
+        row = sum(_PLY_SIZES[t] for _, t in vprops)
+        spec.offset, spec.skip_lines = header["header_bytes"] + nvert * row, 0
+    properties = []
+    for _, t in fprops:
+        prop = _core.FaceProperty()
+        prop.list = isinstance(t, tuple)
+        if prop.list:
+            prop.count, prop.item = (getattr(_core.Scalar, table.PLY_SCALARS[x]) for x in t[1:])
+        else:
+            prop.item = getattr(_core.Scalar, table.PLY_SCALARS[t])
+        properties.append(prop)
+    spec.properties, spec.indices = properties, lists[0]
+    spec.faces, spec.vertices = nface, nvert
+    return MeshPlan(points, spec)
+
+
+def read_mesh(plan: MeshPlan, sample, rng) -> PointCloud:
+    """The PointCloud of a planned PLY mesh: its vertices (normals from the file, else from the
+    faces) or ``sample`` points on its faces, as :func:`pointviz.readers.common.mesh_cloud`."""
+    path = plan.points.path
+    try:
+        (data,) = table.read([plan.points.spec])
+    except (table.TruncatedData, table.MalformedData, RuntimeError) as exc:
+        raise core_error(path, plan.points.header["format"], exc) from None
+    arrays = points_from_table(plan.points, data)
+    try:
+        faces = _core.read_faces(plan.faces)
+    except table.TruncatedData as exc:
+        raise FileFormatError(f"{path}: truncated PLY: {exc}") from None
+    except table.MalformedData as exc:
+        raise FileFormatError(f"{path}: corrupt PLY mesh: {exc}") from None
+    except RuntimeError as exc:
+        raise FileFormatError(f"{path}: could not read the PLY faces ({exc})") from None
+    cloud = mesh_cloud(path, arrays["points"], faces["triangles"], arrays["normals"],
+                       arrays["colors"], sample=sample, rng=rng)
+    if faces["polygons"]:
+        cloud.notes.append(f"split {faces['polygons']} polygons of more than three corners "
+                           "into triangles")
+    return cloud
 
 
 def _load_ply(path: Path, sample, rng) -> PointCloud:

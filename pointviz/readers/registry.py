@@ -1,8 +1,8 @@
 """The readers by file extension, and the one entry point that picks among them.
 
 =====================================  =================================================
-``.ply``                               the core (points); Open3D for meshes
-``.pcd``                               the core (ASCII, binary); Open3D (compressed)
+``.ply``                               the core (points and meshes); Open3D for other layouts
+``.pcd``                               the core (ASCII, binary, compressed)
 ``.xyz .xyzn .xyzrgb``                 the core; ``.pts`` through Open3D
 ``.obj .off .stl``                     Open3D triangle meshes
 ``.glb .gltf``                         trimesh (scenes are flattened with their transforms)

@@ -1,4 +1,5 @@
-// pointviz — tests of the core's table reader (readers/table.h, readers/numbers.h) on its own,
+// pointviz — tests of the core's table and face readers (readers/table.h, readers/faces.h,
+// readers/numbers.h) on their own,
 // run under ASan + UBSan by `make sanitize`. Values are checked against what wrote them (exact
 // round trips of %.17g text and of binary rows); damaged files (random bytes, truncation, random
 // specs) must end in the reader's own errors, never in a crash, a hang or a read out of bounds.
@@ -14,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "pointviz/readers/faces.h"
 #include "pointviz/readers/lzf.h"
 #include "pointviz/readers/numbers.h"
 #include "pointviz/readers/table.h"
@@ -39,11 +41,11 @@ void write_file(const std::string &path, const std::string &bytes) {
 /// What reading one spec gave: the table, or the kind of error.
 enum class Outcome { Ok, Truncated, Malformed, Other, Cancelled };
 
-Outcome read_one(const TableSpec &spec, Table &out, int threads = 0) {
-    std::vector<Table> tables;
-    Progress progress;
+/// What calling `read` gave: Ok, or the kind of error it threw.
+template <class Fn>
+Outcome outcome_of(Fn &&read) {
     try {
-        read_tables({spec}, tables, threads, progress);
+        read();
     } catch (const TruncatedData &) {
         return Outcome::Truncated;
     } catch (const MalformedData &) {
@@ -53,8 +55,15 @@ Outcome read_one(const TableSpec &spec, Table &out, int threads = 0) {
     } catch (const std::runtime_error &) {
         return Outcome::Other;
     }
-    out = std::move(tables[0]);
     return Outcome::Ok;
+}
+
+Outcome read_one(const TableSpec &spec, Table &out, int threads = 0) {
+    std::vector<Table> tables;
+    Progress progress;
+    Outcome o = outcome_of([&] { read_tables({spec}, tables, threads, progress); });
+    if (o == Outcome::Ok) out = std::move(tables[0]);
+    return o;
 }
 
 /// Whether a table holds exactly these values.
@@ -455,6 +464,109 @@ void test_fuzz() {
     CHECK(read_one(ascii_spec(temp_path("absent"), 3, 1), t) == Outcome::Other, "missing file");
 }
 
+/// What reading a face spec gave: the faces, or the kind of error.
+Outcome read_faces_of(const FaceSpec &spec, Faces &out) {
+    Progress progress;
+    return outcome_of([&] { read_faces(spec, out, progress); });
+}
+
+/// Appends one binary scalar of type `s` holding `v` (little- or big-endian).
+void put_scalar(std::string &out, Scalar s, double v, bool big) {
+    char b[8];
+    size_t n = scalar_size(s);
+    switch (s) {
+        case Scalar::I8: { int8_t x = int8_t(v); std::memcpy(b, &x, 1); break; }
+        case Scalar::U8: { uint8_t x = uint8_t(v); std::memcpy(b, &x, 1); break; }
+        case Scalar::I16: { int16_t x = int16_t(v); std::memcpy(b, &x, 2); break; }
+        case Scalar::U16: { uint16_t x = uint16_t(v); std::memcpy(b, &x, 2); break; }
+        case Scalar::I32: { int32_t x = int32_t(v); std::memcpy(b, &x, 4); break; }
+        case Scalar::U32: { uint32_t x = uint32_t(v); std::memcpy(b, &x, 4); break; }
+        case Scalar::F32: { float x = float(v); std::memcpy(b, &x, 4); break; }
+        case Scalar::F64: { double x = v; std::memcpy(b, &x, 8); break; }
+    }
+    if (big) std::reverse(b, b + n);
+    out.append(b, n);
+}
+
+/// Face records of random polygons (3-7 corners, indices < nvert) with a scalar before and a
+/// list after the index list, in each encoding: the fans they must give, then damaged copies.
+void test_faces() {
+    std::string path = temp_path("faces.ply");
+    const uint32_t nvert = 50;
+    for (int enc = 0; enc < 3; ++enc) {
+        std::mt19937_64 gen(77 + uint64_t(enc));
+        FaceSpec spec;
+        spec.path = path;
+        spec.encoding = Encoding(enc);
+        spec.properties = {{false, Scalar::U8, Scalar::F32}, {true, Scalar::U16, Scalar::I32},
+                           {true, Scalar::U8, Scalar::F64}};
+        spec.indices = 1;
+        spec.vertices = nvert;
+        spec.faces = 200;
+        const bool big = spec.encoding == Encoding::BinaryBig;
+        std::string data = spec.encoding == Encoding::Ascii ? "1 2 3\n4 5 6\n" : "";
+        spec.skip_lines = spec.encoding == Encoding::Ascii ? 2 : 0;
+        std::vector<int32_t> want;
+        uint64_t polygons = 0;
+        for (uint64_t f = 0; f < spec.faces; ++f) {
+            uint32_t n = 3 + uint32_t(gen() % 5);
+            std::vector<int32_t> c(n);
+            for (int32_t &x : c) x = int32_t(gen() % nvert);
+            for (uint32_t k = 1; k + 1 < n; ++k) want.insert(want.end(), {c[0], c[k], c[k + 1]});
+            polygons += n > 3;
+            if (spec.encoding == Encoding::Ascii) {
+                data += "0.5 " + std::to_string(n);
+                for (int32_t x : c) data += " " + std::to_string(x);
+                data += " 2 1.5 -2\n";
+            } else {
+                put_scalar(data, Scalar::F32, 0.5, big);
+                put_scalar(data, Scalar::U16, n, big);
+                for (int32_t x : c) put_scalar(data, Scalar::I32, x, big);
+                put_scalar(data, Scalar::U8, 2, big);
+                put_scalar(data, Scalar::F64, 1.5, big);
+                put_scalar(data, Scalar::F64, -2, big);
+            }
+        }
+        write_file(path, data);
+        Faces got;
+        CHECK(read_faces_of(spec, got) == Outcome::Ok, "faces enc %d: read", enc);
+        CHECK(got.triangles == want, "faces enc %d: %zu triangle indices", enc,
+              got.triangles.size());
+        CHECK(got.polygons == polygons, "faces enc %d: polygons", enc);
+        // cut anywhere inside the records: truncated (ASCII: a short last line), never a crash
+        for (int i = 0; i < 60; ++i) {
+            size_t cut = spec.skip_lines * 6 + gen() % (data.size() - spec.skip_lines * 6);
+            write_file(path, data.substr(0, cut));
+            Outcome o = read_faces_of(spec, got);
+            CHECK(o == Outcome::Truncated || (enc == 0 && o == Outcome::Malformed),
+                  "faces enc %d cut %zu: outcome %d", enc, cut, int(o));
+        }
+        // random bytes over the records, random specs: only the reader's own errors
+        for (int i = 0; i < 200; ++i) {
+            std::string bad = data;
+            for (int k = 0; k < 8; ++k) bad[gen() % bad.size()] = char(gen());
+            write_file(path, bad);
+            FaceSpec s = spec;
+            if (i % 4 == 0) s.faces = gen() % 400;
+            if (i % 5 == 0) s.vertices = gen() % 60;
+            if (i % 7 == 0) s.offset = gen() % 40;
+            if (i % 11 == 0) s.faces = uint64_t(1) << 60;
+            Outcome o = read_faces_of(s, got);
+            CHECK(o != Outcome::Cancelled, "faces fuzz enc %d case %d", enc, i);
+            if (o == Outcome::Ok)
+                for (int32_t x : got.triangles)
+                    CHECK(x >= 0 && uint64_t(x) < s.vertices, "faces fuzz: index %d", x);
+        }
+    }
+    // a spec whose index property is not a list is refused before reading
+    FaceSpec bad;
+    bad.path = path;
+    bad.properties = {{false, Scalar::U8, Scalar::I32}};
+    Faces got;
+    CHECK(read_faces_of(bad, got) == Outcome::Other, "faces: scalar index property");
+    std::remove(path.c_str());
+}
+
 /// Expands `stream` into `size` bytes: the bytes, or "!" + the error's kind when it throws.
 std::string lzf(const std::vector<uint8_t> &stream, size_t size) {
     std::vector<uint8_t> out(size);
@@ -522,6 +634,7 @@ int main() {
     test_several_files();
     test_joined_files();
     test_fuzz();
+    test_faces();
     std::printf("reader_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
 }

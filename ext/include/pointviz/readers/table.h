@@ -21,6 +21,7 @@
 
 #include "pointviz/default_init.h"
 #include "pointviz/progress.h"
+#include "pointviz/readers/data_errors.h"
 #include "pointviz/readers/numbers.h"
 
 namespace pointviz {
@@ -143,15 +144,6 @@ struct Table {
     PositionStats positions;
 };
 
-/// The data ends before the rows the spec asks for.
-struct TruncatedData : std::runtime_error {
-    using std::runtime_error::runtime_error;
-};
-/// A row that is not what the spec says: too few or too many values, a token that is not a
-/// number. The message names the row (0-based, counted from the first row of the block).
-struct MalformedData : std::runtime_error {
-    using std::runtime_error::runtime_error;
-};
 
 /// Reads every spec into `out` (resized to match). Several specs are read in parallel, one per
 /// worker; a single spec is split across workers by rows. Results never depend on `threads`.
