@@ -6,8 +6,8 @@ core): normals from a neighbourhood chosen per point, oriented toward the scanne
 viewpoints are known and by minimum-spanning-tree propagation otherwise; radii that cover the
 surface. :meth:`PointCloud.fitted` moves raw scans onto a fitted surface.
 
-Only numpy and scipy are needed here; Open3D and pyvista are imported inside the converters that
-use them.
+Only numpy and the core are needed here; Open3D and pyvista are imported inside the converters
+that use them.
 """
 
 from __future__ import annotations
@@ -73,9 +73,10 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # |cross| = 2 * area
-    acc = np.zeros_like(v)
-    for j in range(3):
-        np.add.at(acc, f[:, j], cross)
+    # each face's cross product added to its three corners: one weighted count per axis
+    corners = f.reshape(-1)
+    acc = np.stack([np.bincount(corners, weights=np.repeat(cross[:, k], 3), minlength=len(v))
+                    for k in range(3)], axis=1) if len(f) else np.zeros_like(v)
     length = np.linalg.norm(acc, axis=1)
     return np.divide(acc, length[:, None], out=np.zeros_like(acc), where=length[:, None] > 0)
 
@@ -760,10 +761,10 @@ class PointCloud:
         if not ok.all():
             # loose vertices (e.g. left over from zippering scans) lie on the surface too:
             # they borrow the normal of the nearest vertex that a face uses
-            from scipy.spatial import cKDTree
+            from .estimation import nearest
 
             used = np.flatnonzero(ok)
-            _, near = cKDTree(v[used]).query(v[~ok], workers=-1)
+            _, near = nearest(v[used], v[~ok])
             nrm[~ok] = nrm[used[near]]
             notes.append(
                 f"{int((~ok).sum())} of {len(v)} vertices are in no (non-degenerate) face: "

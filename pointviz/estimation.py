@@ -329,6 +329,31 @@ def knn(points, k: int, *, threads: int = 0):
     return dist, idx.astype(np.int64)
 
 
+def nearest(points, queries, *, threads: int = 0):
+    """The nearest of ``points`` to each of ``queries``.
+
+    Parameters
+    ----------
+    points : (n, 3) array_like
+        Finite positions, n >= 1.
+    queries : (m, 3) array_like
+        Finite positions.
+    threads : int
+        Worker threads, 0 for all cores. Results do not depend on it.
+
+    Returns
+    -------
+    dist : (m,) float64
+        Euclidean distances.
+    index : (m,) int64
+        Index into ``points``; ties go to the lower index.
+    """
+    pts = _points(points)
+    q = _points(queries, "queries", minimum=0)
+    dist, idx = _core("neighbours").nearest(pts, q, _threads(threads))
+    return dist, idx.astype(np.int64)
+
+
 def estimate_normals(
     points,
     *,

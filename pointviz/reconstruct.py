@@ -83,11 +83,10 @@ def _result(mesh, timings, params, cloud) -> Reconstruction:
 
 def mean_spacing(cloud) -> float:
     """Mean distance from a point to its nearest neighbour (float)."""
-    from scipy.spatial import cKDTree
+    from .estimation import knn
 
-    pts = np.asarray(cloud.points)
-    d, _ = cKDTree(pts).query(pts, k=2, workers=-1)
-    return float(np.mean(d[:, 1]))
+    d, _ = knn(np.asarray(cloud.points), 1)
+    return float(np.mean(d[:, 0]))
 
 
 def poisson(cloud, depth: int = 8, trim_quantile: float = POISSON_TRIM_QUANTILE,

@@ -76,6 +76,28 @@ def test_knn_with_fewer_points_than_neighbours():
     np.testing.assert_allclose(dist, np.sqrt(2))
 
 
+def test_nearest_matches_brute_force_with_ties_by_index(rng):
+    pts = np.r_[rng.normal(size=(700, 3)), np.zeros((3, 3))]  # three copies of the origin
+    queries = np.r_[rng.normal(size=(300, 3)) * 1.5, np.zeros((1, 3)), pts[:20]]
+    dist, idx = est.nearest(pts, queries)
+    d2 = ((queries[:, None, :] - pts[None, :, :]) ** 2).sum(-1)
+    best = d2.min(axis=1)
+    want = np.array([np.flatnonzero(row == b)[0] for row, b in zip(d2, best)])  # lowest index
+    np.testing.assert_array_equal(idx, want)
+    np.testing.assert_allclose(dist, np.sqrt(best), rtol=0, atol=1e-12)
+    assert idx[300] == 700  # the first copy of the origin
+    for threads in (1, 2):
+        np.testing.assert_array_equal(est.nearest(pts, queries, threads=threads)[1], idx)
+
+
+def test_nearest_bad_input():
+    assert est.nearest(np.eye(3), np.zeros((0, 3)))[1].shape == (0,)
+    with pytest.raises(InputError, match="points"):
+        est.nearest(np.zeros((0, 3)), np.eye(3))
+    with pytest.raises(InputError, match="queries"):
+        est.nearest(np.eye(3), [[0.0, np.nan, 0.0]])
+
+
 # ------------------------------------------------------------------------------------------
 # normals
 

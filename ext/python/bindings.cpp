@@ -798,6 +798,19 @@ NB_MODULE(_core, m) {
     }, "points"_a, "k"_a, "threads"_a = 0,
        "(dist (n, k) float64, index (n, k) uint32): k nearest neighbours, the point excluded");
 
+    m.def("nearest", [](CArray<double> points, CArray<double> queries, int threads) {
+        PointsView v = points_view(points, std::nullopt, std::nullopt);
+        if (queries.ndim() != 2 || queries.shape(1) != 3)
+            throw std::invalid_argument("queries: expected shape (m, 3)");
+        if (v.n == 0) throw std::invalid_argument("points: no point to be nearest to");
+        const size_t m = queries.shape(0);
+        NearestOutput o = run_step([&](Progress &pr) {
+            return nearest_points(v, queries.data(), m, threads, pr);
+        });
+        return nb::make_tuple(to_array(o.dist, {m}), to_array(o.index, {m}));
+    }, "points"_a, "queries"_a, "threads"_a = 0,
+       "(dist (m,) float64, index (m,) uint32): the nearest of `points` to each query");
+
     m.def("estimate_normals", [](CArray<double> points, std::optional<CArray<double>> viewpoints,
                                  std::optional<CArray<int32_t>> scan_index,
                                  std::optional<std::array<double, 3>> up, uint32_t k_min,

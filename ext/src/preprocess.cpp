@@ -28,6 +28,25 @@ KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &pr
     return out;
 }
 
+NearestOutput nearest_points(const PointsView &in, const double *queries, size_t m, int threads,
+                             Progress &progress) {
+    KnnTree tree(in.points, in.n, threads, &progress);
+    NearestOutput out;
+    out.index.resize(m);
+    out.dist.resize(m);
+    constexpr size_t kGrain = 4096;
+    parallel_for(m, kGrain, threads, [&](size_t b, size_t e, int) {
+        for (size_t i = b; i < e; ++i) {
+            double d2 = 0;
+            tree.query(queries + 3 * i, 1, kNoIndex, &out.index[i], &d2);
+            out.dist[i] = std::sqrt(d2);
+        }
+        progress.advance(e - b);
+    }, &progress.cancel);
+    progress.check();  // stopped between chunks: Cancelled
+    return out;
+}
+
 namespace {
 
 /// Median of `v` as numpy computes it (the mean of the two middle values of an even count).

@@ -37,6 +37,15 @@ struct KnnOutput {
 };
 KnnOutput knn_points(const PointsView &in, uint32_t k, int threads, Progress &progress);
 
+/// The nearest point of a cloud to each of `m` query positions (ties by lower index).
+struct NearestOutput {
+    std::vector<uint32_t> index;  ///< (m,) index into the cloud
+    std::vector<double> dist;     ///< (m,) Euclidean distance
+};
+/// `queries` (m, 3), finite; the cloud `in` needs at least one point.
+NearestOutput nearest_points(const PointsView &in, const double *queries, size_t m, int threads,
+                             Progress &progress);
+
 /// Oriented normals: toward the viewpoints when given, else along a spanning tree.
 struct NormalsOutput {
     NormalResult est;
