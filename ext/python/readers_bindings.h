@@ -17,6 +17,7 @@
 #include "pointviz/progress.h"
 #include "pointviz/readers/faces.h"
 #include "pointviz/readers/lzf.h"
+#include "pointviz/readers/obj.h"
 #include "pointviz/readers/table.h"
 
 namespace pointviz_bindings {
@@ -176,6 +177,33 @@ inline void bind_readers(nb::module_ &m) {
     "polygons of n > 3 corners as fans of n - 2) and polygons (how many records had more than "
     "three corners). TruncatedData / MalformedData (naming the face) when the data is not what "
     "the spec says.");
+    m.def("read_obj", [](const std::string &path) {
+        pointviz::Progress progress;
+        pointviz::ObjMesh mesh;
+        {
+            nb::gil_scoped_release release;
+            mesh = pointviz::read_obj(path, progress);
+        }
+        const size_t n = mesh.vertices.size() / 3, m = mesh.triangles.size() / 3;
+        nb::dict d;
+        d["vertices"] = nb::cast(nb::ndarray<nb::numpy, double>(
+            mesh.vertices.data(), 2, std::array<size_t, 2>{n, 3}.data(), nb::handle()),
+            nb::rv_policy::copy);
+        d["triangles"] = nb::cast(nb::ndarray<nb::numpy, int32_t>(
+            mesh.triangles.data(), 2, std::array<size_t, 2>{m, 3}.data(), nb::handle()),
+            nb::rv_policy::copy);
+        if (mesh.colors.empty())
+            d["colors"] = nb::none();
+        else
+            d["colors"] = nb::cast(nb::ndarray<nb::numpy, double>(
+                mesh.colors.data(), 2, std::array<size_t, 2>{n, 3}.data(), nb::handle()),
+                nb::rv_policy::copy);
+        d["polygons"] = mesh.polygons;
+        return d;
+    }, "path"_a,
+    "Read an OBJ file's geometry: a dict of vertices ((n, 3) float64), colors ((n, 3) float64 "
+    "when every vertex line has r g b, else None), triangles ((m, 3) int32, polygons as fans) "
+    "and polygons (faces with more than three corners). MalformedData names the line.");
     m.def("lzf_decompress", [](nb::bytes data, size_t size) {
         std::unique_ptr<uint8_t[]> buf(new uint8_t[size > 0 ? size : 1]);
         {

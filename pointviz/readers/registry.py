@@ -4,7 +4,8 @@
 ``.ply``                               the core (points and meshes); Open3D for other layouts
 ``.pcd``                               the core (ASCII, binary, compressed)
 ``.xyz .xyzn .xyzrgb``                 the core; ``.pts`` through Open3D
-``.obj .off .stl``                     Open3D triangle meshes
+``.obj``                               the core (positions, colours, faces)
+``.off .stl``                          Open3D triangle meshes
 ``.glb .gltf``                         trimesh (scenes are flattened with their transforms)
 ``.las .laz``                          laspy (LAZ through lazrs, decompressed in parallel)
 ``.vtp .vtk``                          pyvista

@@ -17,6 +17,7 @@
 
 #include "pointviz/readers/faces.h"
 #include "pointviz/readers/lzf.h"
+#include "pointviz/readers/obj.h"
 #include "pointviz/readers/numbers.h"
 #include "pointviz/readers/table.h"
 #include "check.h"
@@ -567,6 +568,35 @@ void test_faces() {
     std::remove(path.c_str());
 }
 
+/// An OBJ file's fans and negative indices, then random text: the reader's own errors only,
+/// and every index it returns names a vertex.
+void test_obj() {
+    std::string path = temp_path("mesh.obj");
+    write_file(path, "# c\nv 0 0 0\nv 1 0 0 0.5 0.25 1\nvt 0 0\nv 1 1 0\nv 0 1 0\n"
+                     "f 1/1 2/1/1 3//1 4\ng x\nf -4 -3 -2\nl 1 2\n");
+    Progress progress;
+    ObjMesh m = read_obj(path, progress);
+    CHECK(m.vertices.size() == 12 && m.colors.empty(), "obj: %zu values", m.vertices.size());
+    CHECK((m.triangles == std::vector<int32_t>{0, 1, 2, 0, 2, 3, 0, 1, 2}), "obj: triangles");
+    CHECK(m.polygons == 1, "obj: polygons");
+    const char alphabet[] = "vf0123456789 -/.\n#e";
+    for (int i = 0; i < 400; ++i) {
+        std::mt19937_64 gen(5000 + uint64_t(i));
+        std::string text(gen() % 400, ' ');
+        for (char &c : text) c = alphabet[gen() % (sizeof alphabet - 1)];
+        write_file(path, text);
+        ObjMesh got;
+        Outcome o = outcome_of([&] {
+            Progress pr;
+            got = read_obj(path, pr);
+        });
+        CHECK(o == Outcome::Ok || o == Outcome::Malformed, "obj fuzz %d: outcome %d", i, int(o));
+        for (int32_t x : got.triangles)
+            CHECK(x >= 0 && size_t(x) < got.vertices.size() / 3, "obj fuzz %d: index %d", i, x);
+    }
+    std::remove(path.c_str());
+}
+
 /// Expands `stream` into `size` bytes: the bytes, or "!" + the error's kind when it throws.
 std::string lzf(const std::vector<uint8_t> &stream, size_t size) {
     std::vector<uint8_t> out(size);
@@ -635,6 +665,7 @@ int main() {
     test_joined_files();
     test_fuzz();
     test_faces();
+    test_obj();
     std::printf("reader_tests: %d checks, %d failures\n", pointviz_tests::g_checks, pointviz_tests::g_failures);
     return pointviz_tests::g_failures == 0 ? 0 : 1;
 }
