@@ -115,6 +115,34 @@ def outward_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     return f[:, [0, 2, 1]], True
 
 
+#: Largest angle between a vertex's normal and a face's normal for the face's samples to take
+#: it: beyond it the vertex sits on a crease (a box's edge) and the face keeps its own normal.
+SMOOTHING_ANGLE_DEG = 45.0
+
+
+def _smooth_sample_normals(v, f, cross, area2, face, wa, wb, wc) -> np.ndarray:
+    """Normals of points sampled on faces ``face`` at barycentric weights ``(wa, wb, wc)``: the
+    corners' normals blended by those weights (the smooth surface a mesh's shading shows, not
+    its flat facets). A corner takes its vertex's area-weighted normal where that vertex is
+    smooth (every face around it within SMOOTHING_ANGLE_DEG of the vertex normal), else its
+    face's own normal: a crease (a box's edge or corner) stays sharp."""
+    face_n = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    vert_n = vertex_normals(v, f)
+    corner_dot = np.stack([np.einsum("ij,ij->i", vert_n[f[:, k]], face_n) for k in range(3)], 1)
+    worst = np.ones(len(v))
+    np.minimum.at(worst, f.reshape(-1), corner_dot.reshape(-1))
+    smooth = worst >= np.cos(np.radians(SMOOTHING_ANGLE_DEG))
+    fn = face_n[face]
+    out = np.zeros_like(fn)
+    for corner, weight in zip(f[face].T, (wa, wb, wc)):
+        out += weight[:, None] * np.where(smooth[corner][:, None], vert_n[corner], fn)
+    length = np.linalg.norm(out, axis=1)
+    ok = length > 1e-12
+    out[ok] /= length[ok, None]
+    out[~ok] = fn[~ok]
+    return out
+
+
 def _check_faces(faces, nverts: int) -> np.ndarray:
     arr = _numeric("faces", faces)
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -708,10 +736,12 @@ class PointCloud:
         vertices : (v, 3) array_like
         faces : (f, 3) array_like of int
         sample : int, optional
-            If given, draw this many points uniformly (by area) on the surface, each with the
-            normal of its face. Otherwise use the vertices, with area-weighted normals from the
-            faces; a vertex no face uses takes the normal of the nearest vertex one does (and
-            ``notes`` says how many did).
+            If given, draw this many points uniformly (by area) on the surface, each with its
+            corners' vertex normals blended (the smooth surface; a corner whose vertex sits on
+            a crease, a face around it more than SMOOTHING_ANGLE_DEG from its normal, gives
+            its face's own normal instead) and their colours blended the same way. Otherwise
+            use the vertices, with area-weighted normals from the faces; a vertex no face uses
+            takes the normal of the nearest vertex one does (and ``notes`` says how many did).
         rng : numpy.random.Generator or int, optional
             Randomness for ``sample``.
         **kw
@@ -735,7 +765,7 @@ class PointCloud:
                 "normals turned outward"]
         if sample is not None:
             check_int(sample, "sample")
-            kw.pop("colors", None)  # vertex colours do not apply to sampled points
+            colors = kw.pop("colors", None)
             a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
             cross = np.cross(b - a, c - a)
             area2 = np.linalg.norm(cross, axis=1)
@@ -750,7 +780,12 @@ class PointCloud:
                 + (su * (1 - w))[:, None] * b[face]
                 + (su * w)[:, None] * c[face]
             )
-            nrm = cross[face] / area2[face][:, None]
+            weights = (1 - su, su * (1 - w), su * w)
+            nrm = _smooth_sample_normals(v, f, cross, area2, face, *weights)
+            if colors is not None:  # the corners' colours, blended as the normals are
+                col = np.asarray(colors, dtype=np.float64)
+                blend = sum(wk[:, None] * col[f[face, k]] for k, wk in enumerate(weights))
+                kw["colors"] = np.clip(blend, 0.0, 1.0)  # a convex blend, up to rounding
             return cls(pts, nrm, **kw)
         nrm = vertex_normals(v, f)
         ok = np.linalg.norm(nrm, axis=1) > 0

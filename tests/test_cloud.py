@@ -490,6 +490,49 @@ def test_from_mesh_sample_is_uniform_on_the_surface(rng):
     assert np.all(cloud.points[:, :2] >= -1e-12) and np.all(cloud.points.sum(1) <= 3 + 1e-9)
 
 
+def _uv_sphere(n=24):
+    """A closed UV sphere of radius 1: (vertices, outward faces)."""
+    th, ph = np.linspace(0, np.pi, n + 1)[1:-1], np.linspace(0, 2 * np.pi, 2 * n, endpoint=False)
+    v = np.r_[[[0, 0, 1.0]], np.stack([np.outer(np.sin(th), np.cos(ph)).ravel(),
+                                       np.outer(np.sin(th), np.sin(ph)).ravel(),
+                                       np.repeat(np.cos(th), len(ph))], 1), [[0, 0, -1.0]]]
+    m, rows = len(ph), len(th)
+    ring = lambda r, j: 1 + r * m + j % m  # noqa: E731
+    f = [[0, ring(0, j), ring(0, j + 1)] for j in range(m)]
+    for r in range(rows - 1):
+        for j in range(m):
+            f += [[ring(r, j), ring(r + 1, j), ring(r + 1, j + 1)],
+                  [ring(r, j), ring(r + 1, j + 1), ring(r, j + 1)]]
+    f += [[len(v) - 1, ring(rows - 1, j + 1), ring(rows - 1, j)] for j in range(m)]
+    return v, np.array(f)
+
+
+def test_from_mesh_samples_take_the_smooth_surfaces_normals(rng):
+    """On a coarse sphere mesh the sampled normals follow the sphere (blended vertex normals),
+    several times closer to it than the flat faces' normals; on a cube (90° creases) every
+    sample keeps its face's normal exactly."""
+    v, f = _uv_sphere(12)
+    cloud = PointCloud.from_mesh(v, f, sample=20_000, rng=rng)
+    exact = cloud.points / np.linalg.norm(cloud.points, axis=1)[:, None]
+    err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", cloud.normals, exact), -1, 1)))
+    a, b, c = (v[f[:, k]] for k in range(3))
+    flat = np.cross(b - a, c - a)
+    flat /= np.linalg.norm(flat, axis=1)[:, None]
+    centres = (a + b + c) / 3
+    centres /= np.linalg.norm(centres, axis=1)[:, None]
+    flat_err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", flat, centres), -1, 1)))
+    assert err.mean() < flat_err.mean() / 3, (err.mean(), flat_err.mean())
+    # a cube, two triangles per side: corners on 90° creases keep the faces' own normals
+    cv = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    cf = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    cube = PointCloud.from_mesh(cv, cf, sample=3000, rng=rng)
+    axis = np.abs(cube.normals).argmax(axis=1)
+    np.testing.assert_allclose(np.abs(cube.normals[np.arange(3000), axis]), 1.0, atol=1e-6)
+    side = np.where(cube.normals[np.arange(3000), axis] > 0, 1.0, 0.0)
+    np.testing.assert_allclose(cube.points[np.arange(3000), axis], side, atol=1e-6)
+
+
 def test_from_mesh_rejects_bad_faces():
     v, f = octahedron()
     with pytest.raises(InputError, match=r"faces: indices must be in 0\.\.5"):
