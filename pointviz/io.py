@@ -53,10 +53,13 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     path : str or os.PathLike
         The file; the reader is chosen by its (case-insensitive) extension, see
         :data:`SUPPORTED_EXTENSIONS`.
-    sample : int, optional
-        For meshes: draw this many points uniformly on the surface (with face normals) instead
-        of using the vertices. For point files: keep a uniformly random subset of this many
-        points (all of them if the file has fewer).
+    sample : int or "auto", optional
+        For meshes: draw this many points uniformly on the surface (normals and colours blended
+        from the vertices', creases kept sharp) instead of using the vertices; ``"auto"``: the
+        vertices, unless they lie too far apart for the picture
+        (:func:`pointviz.readers.common.dense_sample_count`), then a seeded dense sampling. For
+        point files: keep a uniformly random subset of this many points (all of them if the
+        file has fewer; ``"auto"``: all).
     estimate : bool or "normals"
         If True (default), normals and radii the file does not provide are estimated before
         returning, so problems surface here with the file name and the cloud is ready to
@@ -92,7 +95,7 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     unknown = set(kw) - {"rng", "up", "name"}
     if unknown:
         raise InputError(f"load: unknown keyword argument(s) {', '.join(sorted(unknown))}")
-    if sample is not None:
+    if sample is not None and not (isinstance(sample, str) and sample == "auto"):
         check_int(sample, "sample")
     if estimate not in (True, False, "normals"):
         raise InputError(f"load: estimate must be True, False or 'normals', got {estimate!r}")

@@ -662,6 +662,74 @@ def test_mesh_formats(tmp_path, ext):
     assert len(sampled) == 300 and sampled.has_normals
 
 
+def _coarse_and_fine_spheres(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    coarse = trimesh.creation.icosphere(subdivisions=1, radius=1.0)  # 42 vertices
+    fine = trimesh.creation.icosphere(subdivisions=7, radius=1.0)    # 163842 vertices
+    paths = tmp_path / "coarse.ply", tmp_path / "fine.ply"
+    coarse.export(str(paths[0]))
+    fine.export(str(paths[1]))
+    return coarse, fine, paths
+
+
+def test_sparse_meshes_are_sampled_densely_by_default_in_the_cli_path(tmp_path):
+    """``sample="auto"`` (what render, view and path load with): a 42-vertex icosphere's vertex
+    disks would be ~150 px facets, so its faces are sampled at ~1.5 px spacing of a 480 px frame
+    (the count follows from its area: 4 pi r^2 / (1.5 * 2 r / 480)^2 ~ 1.3e5, the icosphere's
+    area a little less); a 164k-vertex one (edges ~2 px) keeps its vertices. The sampling is seeded: the
+    same points every time."""
+    from pointviz.readers.common import DENSE_FRAME_PIXELS, DENSE_SPACING_PIXELS
+
+    coarse, fine, (pc, pf) = _coarse_and_fine_spheres(tmp_path)
+    auto = load(pc, sample="auto", estimate=False)
+    want = coarse.area / (DENSE_SPACING_PIXELS * 2.0 / DENSE_FRAME_PIXELS) ** 2
+    assert len(auto) == pytest.approx(want, rel=0.02)
+    assert any("sparse for the picture" in n for n in auto.notes)
+    np.testing.assert_array_equal(auto.points, load(pc, sample="auto", estimate=False).points)
+    # the samples' normals follow the sphere (blended), not the 80 flat faces (up to ~20 deg)
+    unit = auto.points / np.linalg.norm(auto.points, axis=1)[:, None]
+    cos = np.einsum("ij,ij->i", auto.normals, unit)
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).mean() < 6.0
+    assert len(load(pf, sample="auto", estimate=False)) == len(fine.vertices)
+    assert len(load(pc, estimate=False)) == len(coarse.vertices)  # the API's default: vertices
+    # point files are never sampled by "auto"
+    pts = tmp_path / "p.xyz"
+    np.savetxt(pts, np.random.default_rng(0).normal(size=(50, 3)))
+    assert len(load(pts, sample="auto", estimate=False)) == 50
+
+
+def test_cli_sample_option(tmp_path):
+    _, _, (pc, _) = _coarse_and_fine_spheres(tmp_path)
+    from pointviz.cli import main
+
+    def points(*extra):
+        import contextlib
+        import io as _io
+
+        buf = _io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert main(["info", str(pc), *extra]) == 0
+        line = next(x for x in buf.getvalue().splitlines() if x.startswith("points"))
+        return int(line.split()[1])
+
+    assert points() > 100_000
+    assert points("--sample", "vertices") == 42
+    assert points("--sample", "500") == 500
+    for bad in ("0", "-3", "many"):
+        with pytest.raises(SystemExit):
+            main(["info", str(pc), "--sample", bad])
+
+
+def test_sampled_mesh_colours_are_blended_from_the_vertices(rng):
+    """Samples of a coloured triangle take the barycentric blend of its corners' colours."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    col = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    cloud = PointCloud.from_mesh(v, [[0, 1, 2]], sample=2000, rng=rng, colors=col)
+    p = cloud.points
+    want = np.c_[1 - p[:, 0] - p[:, 1], p[:, 0], p[:, 1]]  # barycentric weights = colours
+    np.testing.assert_allclose(cloud.colors, want, atol=2e-3)  # colours are stored as 8 bits
+
+
 def test_las_roundtrip(tmp_path, rng):
     laspy = pytest.importorskip("laspy")
     header = laspy.LasHeader(point_format=3, version="1.2")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 import threading
 from dataclasses import MISSING, fields
@@ -17,14 +18,30 @@ from ..values import axis
 
 def add_input_options(p) -> None:
     p.add_argument("input", help="point cloud, mesh, registered scans (.conf), or 'demo'")
-    p.add_argument("--sample", type=int, default=None, metavar="N",
-                   help="for meshes: sample N surface points instead of using the vertices")
+    p.add_argument("--sample", type=sample_count, default="auto", metavar="N",
+                   help="for meshes: sample N surface points instead of using the vertices; "
+                        "'vertices': the vertices as they are; default 'auto': the vertices, "
+                        "or a dense sampling where they lie too far apart for the picture")
     p.add_argument("--no-fit", dest="fit", action="store_false", default=None,
                    help="raw scans: keep the points as scanned (no surface fit, no thinning)")
     p.add_argument("--up", default=None, metavar="AXIS",
                    help="the data's up direction: x, y, z, -x, -y, -z or X,Y,Z, a leading minus "
                         "after '=' (--up=-z; default: the file's convention: +z for LAS/LAZ, -y "
                         "for depth-camera frames, else +y)")
+
+
+def sample_count(text: str):
+    """``--sample``: a positive count, ``auto`` or ``vertices`` (None: no sampling)."""
+    if text in ("auto", "vertices"):
+        return None if text == "vertices" else text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a positive number of points, 'auto' or 'vertices', got {text!r}")
+    return value
 
 
 def parse_up(text: str | None):

@@ -56,7 +56,10 @@ def usable_normals(normals, keep, notes: list[str]):
 
 
 def subsample(cloud_kw: dict, n: int, sample, rng, notes: list[str]) -> dict:
-    """Keep a uniformly random subset of ``sample`` rows of every per-point array."""
+    """Keep a uniformly random subset of ``sample`` rows of every per-point array (``"auto"``:
+    all of them; it only samples meshes)."""
+    if sample == "auto":
+        sample = None
     if sample is None or sample >= n:
         if sample is not None:
             notes.append(f"sample={sample} >= {n} points: kept all points")
@@ -96,12 +99,47 @@ def point_cloud(path, points, normals=None, colors=None, *, sample=None, rng=Non
     return PointCloud(**fields, notes=notes)
 
 
+#: The frame height, in pixels, that :func:`dense_sample_count` plans for (the default frame's;
+#: an object fitted to the frame spans about that many pixels).
+DENSE_FRAME_PIXELS = 480
+#: A mesh whose median edge is longer than this many of those pixels is sampled densely: its
+#: vertex disks would show as facets (spot.obj's 3k vertices: 10.6 px; the bunny's 36k: 3.4 px,
+#: a fine grain; Lucy's 50k: 2.1 px and the Armadillo's 173k: 1.3 px, smooth).
+SPARSE_EDGE_PIXELS = 3.0
+#: The dense sampling's spacing, in those pixels, and the most points it draws.
+DENSE_SPACING_PIXELS = 1.5
+DENSE_MAX_POINTS = 1_000_000
+
+
+def dense_sample_count(vertices: np.ndarray, faces: np.ndarray) -> int | None:
+    """How many surface points a mesh needs so that, framed whole in a DENSE_FRAME_PIXELS
+    frame, they lie about DENSE_SPACING_PIXELS apart; None when its vertices already lie within
+    SPARSE_EDGE_PIXELS of each other (median edge). Never fewer points than vertices, at most
+    DENSE_MAX_POINTS."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    radius = float(np.linalg.norm(vertices - (lo + hi) / 2, axis=1).max())
+    if not radius > 0:
+        return None
+    pixel = 2.0 * radius / DENSE_FRAME_PIXELS
+    some = faces[:: max(1, len(faces) // 100_000)]
+    edges = np.linalg.norm(vertices[some] - vertices[np.roll(some, 1, axis=1)], axis=2)
+    if not np.median(edges) > SPARSE_EDGE_PIXELS * pixel:
+        return None
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    area = 0.5 * float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+    want = int(np.ceil(area / (DENSE_SPACING_PIXELS * pixel) ** 2))
+    return int(min(DENSE_MAX_POINTS, max(want, len(vertices))))
+
+
 def mesh_cloud(
     path, vertices, faces, normals=None, colors=None, *, sample=None, rng=None, merge=False, up=None
 ):
-    """A mesh's vertices (normals from the faces unless given) or ``sample`` surface points."""
+    """A mesh's vertices (normals from the faces unless given) or ``sample`` surface points;
+    ``"auto"``: the vertices, or as many surface points as :func:`dense_sample_count` asks for
+    when they are too far apart for the picture (seeded: the same points every time)."""
     notes: list[str] = []
-    if sample is not None:
+    auto = isinstance(sample, str) and sample == "auto"
+    if sample is not None and not auto:
         check_points_fit(sample, "sample")
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -125,6 +163,15 @@ def mesh_cloud(
             vertices = vertices[keep]
             normals = None  # re-derived from the faces: split normals no longer apply
             colors = None if colors is None else np.asarray(colors)[keep]
+    if auto and len(faces):
+        sample = dense_sample_count(vertices, faces)
+        if sample is not None:
+            rng = 0 if rng is None else rng
+            notes.append(f"{len(vertices)} vertices are sparse for the picture: sampled the "
+                         "faces densely (--sample N sets the count, --sample vertices keeps the "
+                         "vertices)")
+    elif auto:
+        sample = None
     if len(faces) == 0:
         return point_cloud(
             path,

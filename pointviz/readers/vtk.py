@@ -26,6 +26,6 @@ def read_vtk(path: Path, sample, rng) -> PointCloud:
         cloud = PointCloud.from_pyvista(data.extract_points(keep, adjacent_cells=False))
         cloud.notes.extend(notes)
         return cloud
-    return PointCloud.from_pyvista(data, sample=sample, rng=rng)
+    return PointCloud.from_pyvista(data, sample=None if sample == "auto" else sample, rng=rng)
 
 
