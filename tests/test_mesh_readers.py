@@ -1,6 +1,7 @@
-"""OBJ files read in the core (positions, vertex colours, faces) against two oracles: Open3D's
-reader on the OBJ files of the shared data, and files written here whose triangles numpy builds
-(every corner form, negative indices, polygons as fans)."""
+"""OBJ files read in the core (positions, vertex colours, faces) and STL files read with numpy,
+against two oracles: Open3D's reader (the shared data's OBJ files; STL written by trimesh) and
+files written here whose triangles numpy builds (every OBJ corner form, negative indices,
+polygons as fans)."""
 
 from __future__ import annotations
 
@@ -125,3 +126,72 @@ def test_bad_obj_files_are_clear_errors(tmp_path, text, message):
     with pytest.raises(FileFormatError) as err:
         load(path)
     assert str(path) in str(err.value) and message in str(err.value), str(err.value)
+
+
+# ---- STL ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("file_type", ["stl", "stl_ascii"])
+def test_stl_equals_open3ds_reading(tmp_path, file_type):
+    trimesh = pytest.importorskip("trimesh")
+    o3d = pytest.importorskip("open3d")
+    from pointviz.readers.common import mesh_from_o3d
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    path = tmp_path / "ico.stl"
+    mesh.export(str(path), file_type=file_type)
+    ours = load(path, estimate=False)
+    theirs = mesh_from_o3d(path, o3d.io.read_triangle_mesh(str(path)), None, None, merge=True)
+    assert len(ours) == len(theirs) == len(mesh.vertices)  # every facet's copies merged
+    # pair the points by brute force (Open3D parses ASCII as float32: sorting would split ties)
+    pa, pb = ours.points.astype(np.float64), theirs.points.astype(np.float64)
+    d2 = ((pa[:, None, :] - pb[None, :, :]) ** 2).sum(-1)
+    match = d2.argmin(axis=1)
+    assert np.sqrt(d2[np.arange(len(pa)), match]).max() < 1e-6
+    assert len(np.unique(match)) == len(pa)
+    cos = np.clip(np.einsum("ij,ij->i", ours.normals, theirs.normals[match]), -1.0, 1.0)
+    assert np.degrees(np.arccos(cos)).max() < 0.1
+
+
+def test_loading_an_stl_does_not_import_open3d(tmp_path):
+    path = tmp_path / "t.stl"
+    path.write_text("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+                    "vertex 0 1 0\nendloop\nendfacet\nendsolid t\n")
+    code = ("import sys; from pointviz.io import load; c = load(sys.argv[1]); "
+            "print(len(c), 'open3d' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["3", "False"], out
+
+
+def _binary_stl(n, extra=b""):
+    rec = np.zeros(n, dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    rec["v"] = np.arange(9 * n, dtype=np.float32).reshape(n, 3, 3) % 7
+    return b"solid but binary".ljust(80, b" ") + np.uint32(n).tobytes() + rec.tobytes() + extra
+
+
+@pytest.mark.parametrize("data, message", [
+    (_binary_stl(4, b"xx"), "binary STL of 4 facets needs 284 bytes, the file has 286"),
+    (_binary_stl(4)[:-10], "binary STL of 4 facets needs 284 bytes, the file has 274"),
+    (b"\0" * 90, "binary STL of 0 facets needs 84 bytes, the file has 90"),
+    (b"solid x\nfacet\nvertex 0 0 0\nvertex 1 0 0\nendfacet\n", "not three per facet"),
+    (b"solid x\nvertex 0 0 0\nvertex 1 0 q\nvertex 0 1 0\n", "holds a non-number"),
+    (b"solid x\nendsolid x\n", "no vertices"),
+], ids=["binary-long", "binary-short", "binary-zeros", "ascii-two-corners", "ascii-nan",
+        "ascii-empty"])
+def test_bad_stl_files_are_clear_errors(tmp_path, data, message):
+    path = tmp_path / "bad.stl"
+    path.write_bytes(data)
+    with pytest.raises(FileFormatError) as err:
+        load(path)
+    assert str(path) in str(err.value) and message in str(err.value), str(err.value)
+
+
+def test_binary_stl_whose_header_says_solid(tmp_path):
+    """A binary file is told by its size, whatever its 80-byte header says."""
+    path = tmp_path / "b.stl"
+    path.write_bytes(_binary_stl(5))
+    from pointviz.readers.mesh import read_stl
+
+    v, f = read_stl(path)
+    assert v.shape == (15, 3) and f.shape == (5, 3)
