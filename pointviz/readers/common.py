@@ -55,6 +55,15 @@ def usable_normals(normals, keep, notes: list[str]):
     return normals
 
 
+def is_number(token: bytes) -> bool:
+    """Whether a text token parses as a float (for naming the bad token in an error)."""
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
 def subsample(cloud_kw: dict, n: int, sample, rng, notes: list[str]) -> dict:
     """Keep a uniformly random subset of ``sample`` rows of every per-point array (``"auto"``:
     all of them; it only samples meshes)."""

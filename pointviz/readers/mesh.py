@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, require
-from .common import mesh_cloud, mesh_from_o3d, quiet_open3d
+from .common import is_number, mesh_cloud, mesh_from_o3d, quiet_open3d
 
 
 def read_mesh(path: Path, sample, rng) -> PointCloud:
@@ -102,15 +102,7 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         vertices = np.array(corners, dtype=np.float64).reshape(-1, 3)
     except ValueError:
-        bad = next(c for c in corners for t in c if not _is_float(t))
+        bad = next(c for c in corners for t in c if not is_number(t))
         raise FileFormatError(f"{path}: malformed ASCII STL: a vertex holds a non-number "
                               f"({b' '.join(bad).decode('latin-1')!r})") from None
     return vertices, np.arange(len(vertices)).reshape(-1, 3)
-
-
-def _is_float(token: bytes) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True

@@ -15,7 +15,8 @@ from ..errors import FileFormatError, require
 from ..validate import check_points_fit
 from . import table
 from .. import _core
-from .common import cloud_from_o3d_points, mesh_cloud, mesh_from_o3d, point_cloud, quiet_open3d
+from .common import (cloud_from_o3d_points, is_number, mesh_cloud, mesh_from_o3d, point_cloud,
+                     quiet_open3d)
 
 # PLY property sizes in bytes
 _PLY_SIZES = {
@@ -275,20 +276,12 @@ def _check_ply_ascii_rows(path: Path, data: bytes, elements) -> None:
             np.array(b" ".join(rows).split(), dtype=np.float64)
         except ValueError:
             bad = next(
-                (k, f) for k, line in enumerate(rows) for f in line.split() if not _is_number(f)
+                (k, f) for k, line in enumerate(rows) for f in line.split() if not is_number(f)
             )
             raise FileFormatError(
                 f"{path}: malformed ASCII PLY: {name} row {bad[0]} holds a non-number "
                 f"{bad[1].decode('latin-1')!r}"
             ) from None
-
-
-def _is_number(token: bytes) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
 
 
 @dataclass
