@@ -51,6 +51,44 @@ def ply_mesh(vertices: np.ndarray, faces: np.ndarray) -> bytes:
     return head + body
 
 
+def ply_mesh_ascii(vertices: np.ndarray, faces) -> bytes:
+    """An ASCII PLY mesh whose faces carry a scalar before their index list (as the Armadillo's
+    do) and polygons of any size."""
+    head = (
+        "ply\nformat ascii 1.0\n"
+        f"element vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty uchar flags\n"
+        "property list uchar int vertex_indices\nend_header\n"
+    ).encode()
+    rows = "".join(f"7 {len(f)} " + " ".join(map(str, f)) + "\n" for f in faces)
+    return head + ascii_rows(vertices) + rows.encode()
+
+
+def obj_text(vertices: np.ndarray, faces) -> bytes:
+    """An OBJ: vertices, a texture coordinate, and faces in the v/vt and v//vn forms."""
+    lines = ["# fuzz seed", "o seed"] + [f"v {x:.6g} {y:.6g} {z:.6g}" for x, y, z in vertices]
+    lines += ["vt 0 0", "vn 0 0 1"]
+    lines += ["f " + " ".join(f"{i + 1}/1" if k % 2 else f"{i + 1}//1" for k, i in enumerate(f))
+              for f in faces]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def stl_binary(vertices: np.ndarray, faces) -> bytes:
+    corners = np.asarray(vertices, "<f4")[np.asarray(faces)]
+    rec = np.zeros(len(corners), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    rec["v"] = corners
+    return b"solid fuzz".ljust(80) + np.uint32(len(rec)).tobytes() + rec.tobytes()
+
+
+def stl_ascii(vertices: np.ndarray, faces) -> bytes:
+    out = ["solid fuzz"]
+    for f in faces:
+        out += ["facet normal 0 0 1", "outer loop"]
+        out += [f"vertex {x:.6g} {y:.6g} {z:.6g}" for x, y, z in np.asarray(vertices)[f]]
+        out += ["endloop", "endfacet"]
+    return ("\n".join(out + ["endsolid fuzz"]) + "\n").encode()
+
+
 def pcd_header(n: int, data: str = "binary", width: int | None = None) -> bytes:
     width = n if width is None else width
     return (

@@ -81,6 +81,10 @@ def _seeds(shared: Path | None) -> list[tuple[str, bytes]]:
         (".ply", S.ply_ascii(pts)), (".ply", S.ply_mesh(pts[:4], [[0, 1, 2], [0, 2, 3]])),
         (".pcd", S.pcd_binary(pts)), (".pcd", S.pcd_ascii(pts)), (".xyz", S.xyz_text(pts)),
         (".las", S.las_bytes(pts)),
+        (".ply", S.ply_mesh_ascii(pts[:6], [[0, 1, 2], [0, 2, 3, 4], [1, 4, 5]])),
+        (".obj", S.obj_text(pts[:6], [[0, 1, 2], [0, 2, 3, 4], [1, 4, 5]])),
+        (".stl", S.stl_binary(pts[:6], [[0, 1, 2], [0, 2, 3], [1, 4, 5]])),
+        (".stl", S.stl_ascii(pts[:6], [[0, 1, 2], [0, 2, 3], [1, 4, 5]])),
     ]
     if shared is not None:
         for rel in REAL_HEADER_FILES:
