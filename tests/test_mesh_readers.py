@@ -1,5 +1,6 @@
-"""OBJ files read in the core (positions, vertex colours, faces) and STL files read with numpy,
-against two oracles: Open3D's reader (the shared data's OBJ files; STL written by trimesh) and
+"""OBJ files read in the core (positions, vertex colours, faces), STL and OFF read with numpy,
+against two oracles: Open3D's reader (the shared data's OBJ files; STL and OFF written by
+trimesh) and
 files written here whose triangles numpy builds (every OBJ corner form, negative indices,
 polygons as fans)."""
 
@@ -109,23 +110,7 @@ def test_vertex_colours_and_polygon_note(tmp_path, rng):
     assert any("split 1 polygons" in note for note in cloud.notes), cloud.notes
 
 
-@pytest.mark.parametrize("text, message", [
-    ("v 0 0\n", "line 1: a vertex needs x, y and z"),
-    ("v 0 0 x\n", "line 1: a vertex holds a non-number"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4: a face has 2 corners"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", "line 4: a face corner's vertex index"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1.5\n", "line 4: a face corner's vertex index"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 4\n", "line 5: a face names a vertex that is not"),
-    ("v 0 0 0\nv 1 0 0\nf 1 2 -3\nv 0 1 0\n", "line 3: a face names a vertex that is not"),
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999\n", "line 4: a face names a vertex"),
-    ("# nothing\n", "no vertices"),
-])
-def test_bad_obj_files_are_clear_errors(tmp_path, text, message):
-    path = tmp_path / "bad.obj"
-    path.write_text(text)
-    with pytest.raises(FileFormatError) as err:
-        load(path)
-    assert str(path) in str(err.value) and message in str(err.value), str(err.value)
+
 
 
 # ---- STL ------------------------------------------------------------------------------------
@@ -170,21 +155,7 @@ def _binary_stl(n, extra=b""):
     return b"solid but binary".ljust(80, b" ") + np.uint32(n).tobytes() + rec.tobytes() + extra
 
 
-@pytest.mark.parametrize("data, message", [
-    (_binary_stl(4, b"xx"), "binary STL of 4 facets needs 284 bytes, the file has 286"),
-    (_binary_stl(4)[:-10], "binary STL of 4 facets needs 284 bytes, the file has 274"),
-    (b"\0" * 90, "binary STL of 0 facets needs 84 bytes, the file has 90"),
-    (b"solid x\nfacet\nvertex 0 0 0\nvertex 1 0 0\nendfacet\n", "not three per facet"),
-    (b"solid x\nvertex 0 0 0\nvertex 1 0 q\nvertex 0 1 0\n", "holds a non-number"),
-    (b"solid x\nendsolid x\n", "no vertices"),
-], ids=["binary-long", "binary-short", "binary-zeros", "ascii-two-corners", "ascii-nan",
-        "ascii-empty"])
-def test_bad_stl_files_are_clear_errors(tmp_path, data, message):
-    path = tmp_path / "bad.stl"
-    path.write_bytes(data)
-    with pytest.raises(FileFormatError) as err:
-        load(path)
-    assert str(path) in str(err.value) and message in str(err.value), str(err.value)
+
 
 
 def test_binary_stl_whose_header_says_solid(tmp_path):
@@ -195,3 +166,77 @@ def test_binary_stl_whose_header_says_solid(tmp_path):
 
     v, f = read_stl(path)
     assert v.shape == (15, 3) and f.shape == (5, 3)
+
+
+# ---- OFF ------------------------------------------------------------------------------------
+
+
+def test_off_equals_open3ds_reading(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    o3d = pytest.importorskip("open3d")
+    from pointviz.readers.common import mesh_from_o3d
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    path = tmp_path / "ico.off"
+    mesh.export(str(path))
+    ours = load(path, estimate=False)
+    theirs = mesh_from_o3d(path, o3d.io.read_triangle_mesh(str(path)), None, None)
+    np.testing.assert_allclose(ours.points, theirs.points, rtol=0, atol=1e-6)  # same order
+    cos = np.clip(np.einsum("ij,ij->i", ours.normals, theirs.normals), -1.0, 1.0)
+    assert np.degrees(np.arccos(cos)).max() < 0.1
+
+
+def test_off_variants_comments_colours_and_polygons(tmp_path):
+    path = tmp_path / "c.off"
+    path.write_text("COFF # coloured\n# a comment line\n5 2 0\n0 0 0 255 0 0 255\n"
+                    "1 0 0 0 255 0 255\n1 1 0 0 0 255 255\n0 1 0 255 255 255 255\n"
+                    "0 0 1 0 0 0 255\n4 0 1 2 3 200 0 0\n3 0 1 4\n")
+    cloud = load(path, estimate=False)
+    assert len(cloud) == 5
+    np.testing.assert_allclose(cloud.colors[:3], np.eye(3), atol=1 / 255)
+    assert any("split 1 polygons" in n for n in cloud.notes)
+    from pointviz.readers.mesh import read_off
+
+    _, tri, _, polygons = read_off(path)
+    np.testing.assert_array_equal(tri, [[0, 1, 2], [0, 2, 3], [0, 1, 4]])
+    assert polygons == 1
+    inline = tmp_path / "i.off"  # the counts on the OFF line
+    inline.write_text("OFF 3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert len(load(inline, estimate=False)) == 3
+
+#: (suffix, file contents (str: text), what the one-line error must say)
+BAD_FILES = [
+    (".obj", "v 0 0\n", "line 1: a vertex needs x, y and z"),
+    (".obj", "v 0 0 x\n", "line 1: a vertex holds a non-number"),
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4: a face has 2 corners"),
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", "line 4: a face corner's vertex index"),
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 1.5\n", "line 4: a face corner's vertex index"),
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 4\n", "line 5: a face names a vertex that is not"),
+    (".obj", "v 0 0 0\nv 1 0 0\nf 1 2 -3\nv 0 1 0\n", "line 3: a face names a vertex that is not"),
+    (".obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999\n", "line 4: a face names a vertex"),
+    (".obj", "# nothing\n", "no vertices"),
+    (".stl", _binary_stl(4, b"xx"), "binary STL of 4 facets needs 284 bytes, the file has 286"),
+    (".stl", _binary_stl(4)[:-10], "binary STL of 4 facets needs 284 bytes, the file has 274"),
+    (".stl", b"\0" * 90, "binary STL of 0 facets needs 84 bytes, the file has 90"),
+    (".stl", b"solid x\nfacet\nvertex 0 0 0\nvertex 1 0 0\nendfacet\n", "not three per facet"),
+    (".stl", b"solid x\nvertex 0 0 0\nvertex 1 0 q\nvertex 0 1 0\n", "holds a non-number"),
+    (".stl", b"solid x\nendsolid x\n", "no vertices"),
+    (".off", "PLY\n", "not an OFF file"),
+    (".off", "OFF\nthree 1 0\n", "the counts line"),
+    (".off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", "truncated OFF"),
+    (".off", "OFF\n3 1 0\n0 0 0\n1 0 x\n0 1 0\n3 0 1 2\n", "a vertex holds a non-number"),
+    (".off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n",
+     "face 0 has vertex indices outside 0..2"),
+    (".off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n", "face 0 declares 2 corners"),
+    (".off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1\n", "face 0 declares 3 corners, has 2"),
+]
+
+
+@pytest.mark.parametrize("suffix, data, message", BAD_FILES,
+                         ids=[f"{s[1:]}-{k}" for k, (s, _, _) in enumerate(BAD_FILES)])
+def test_bad_mesh_files_are_clear_errors(tmp_path, suffix, data, message):
+    path = tmp_path / f"bad{suffix}"
+    path.write_bytes(data.encode() if isinstance(data, str) else data)
+    with pytest.raises(FileFormatError) as err:
+        load(path)
+    assert str(path) in str(err.value) and message in str(err.value), str(err.value)

@@ -1,5 +1,5 @@
-"""Triangle meshes: OBJ in the core (its positions, vertex colours and faces), STL with numpy
-(binary and ASCII), OFF through Open3D, glTF through trimesh."""
+"""Triangle meshes: OBJ in the core (its positions, vertex colours and faces), STL and OFF with
+numpy, glTF through trimesh. None of them imports Open3D (a second of a first render)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, require
-from .common import is_number, mesh_cloud, mesh_from_o3d, quiet_open3d
+from .common import is_number, mesh_cloud
 
 
 def read_mesh(path: Path, sample, rng) -> PointCloud:
@@ -30,12 +30,14 @@ def read_mesh(path: Path, sample, rng) -> PointCloud:
         return _read_obj(path, sample, rng)
     if ext == ".stl":
         return mesh_cloud(path, *read_stl(path), None, None, sample=sample, rng=rng, merge=True)
-    o3d = require("open3d", "io")
-    with quiet_open3d(o3d):
-        mesh = o3d.io.read_triangle_mesh(str(path))
-    if len(mesh.vertices) == 0:
-        raise FileFormatError(f"{path}: no vertices could be read (empty or unparsable file)")
-    return mesh_from_o3d(path, mesh, sample, rng)
+    if ext == ".off":
+        vertices, faces, colors, polygons = read_off(path)
+        cloud = mesh_cloud(path, vertices, faces, None, colors, sample=sample, rng=rng)
+        if polygons:
+            cloud.notes.append(f"split {polygons} polygons of more than three corners into "
+                               "triangles")
+        return cloud
+    raise FileFormatError(f"{path}: not a mesh format pointviz reads")
 
 
 
@@ -106,3 +108,58 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise FileFormatError(f"{path}: malformed ASCII STL: a vertex holds a non-number "
                               f"({b' '.join(bad).decode('latin-1')!r})") from None
     return vertices, np.arange(len(vertices)).reshape(-1, 3)
+
+
+def read_off(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int]:
+    """``(vertices (n, 3), triangles (m, 3), colours (n, 3) or None, polygons split)`` of an
+    ASCII OFF file (``OFF``, ``COFF``, ``NOFF``, ``CNOFF``...: normals, when declared, are not
+    read; colours are, scaled to [0, 1]). Faces beyond three corners become fans; a face's own
+    colour after its indices is ignored. Comments start with ``#``."""
+    text = path.read_bytes()
+    if b"\0" in text[:4096]:
+        raise FileFormatError(f"{path}: binary OFF is not supported (only ASCII OFF)")
+    lines = [line.split(b"#", 1)[0].split() for line in text.splitlines()]
+    lines = [tokens for tokens in lines if tokens]
+    if not lines or not lines[0][0].upper().endswith(b"OFF"):
+        raise FileFormatError(f"{path}: not an OFF file (it does not start with OFF)")
+    kind = lines[0][0].upper()[:-3]
+    head = lines[0][1:] or (lines[1] if len(lines) > 1 else [])
+    body = lines[1:] if lines[0][1:] else lines[2:]
+    try:
+        nv, nf = int(head[0]), int(head[1])
+    except (IndexError, ValueError):
+        raise FileFormatError(f"{path}: malformed OFF: the counts line is not 'vertices faces "
+                              "edges'") from None
+    if nv < 0 or nf < 0 or nv + nf > len(body):
+        raise FileFormatError(f"{path}: truncated OFF: the header declares {nv} vertices and "
+                              f"{nf} faces, the file has {len(body)} lines after it")
+    try:
+        rows = [np.array(tokens, dtype=np.float64) for tokens in body[:nv]]
+    except ValueError:
+        raise FileFormatError(f"{path}: malformed OFF: a vertex holds a non-number") from None
+    width = min((len(r) for r in rows), default=3)
+    if width < 3:
+        raise FileFormatError(f"{path}: malformed OFF: a vertex has fewer than 3 values")
+    table = np.array([r[:width] for r in rows]) if rows else np.zeros((0, 3))
+    vertices = table[:, :3]
+    colors = None
+    first = 6 if b"N" in kind else 3
+    if b"C" in kind and width >= first + 3:
+        colors = table[:, first:first + 3]
+        colors = np.clip(colors / (255.0 if colors.max(initial=0) > 1.0 else 1.0), 0.0, 1.0)
+    triangles, polygons = [], 0
+    for k, tokens in enumerate(body[nv:nv + nf]):
+        try:
+            n = int(tokens[0])
+            corners = [int(t) for t in tokens[1:1 + n]]
+        except ValueError:
+            raise FileFormatError(f"{path}: malformed OFF: face {k} holds a non-integer") from None
+        if n < 3 or len(corners) != n:
+            raise FileFormatError(f"{path}: corrupt OFF mesh: face {k} declares {n} corners, "
+                                  f"has {len(corners)}")
+        if min(corners) < 0 or max(corners) >= nv:
+            raise FileFormatError(f"{path}: corrupt OFF mesh: face {k} has vertex indices "
+                                  f"outside 0..{nv - 1}")
+        polygons += n > 3
+        triangles += [(corners[0], corners[i], corners[i + 1]) for i in range(1, n - 1)]
+    return vertices, np.array(triangles, dtype=np.int64).reshape(-1, 3), colors, polygons

@@ -5,8 +5,7 @@
 ``.pcd``                               the core (ASCII, binary, compressed)
 ``.xyz .xyzn .xyzrgb``                 the core; ``.pts`` through Open3D
 ``.obj``                               the core (positions, colours, faces)
-``.stl``                               numpy (binary and ASCII)
-``.off``                               Open3D triangle meshes
+``.stl .off``                          numpy (STL binary and ASCII, ASCII OFF)
 ``.glb .gltf``                         trimesh (scenes are flattened with their transforms)
 ``.las .laz``                          laspy (LAZ through lazrs, decompressed in parallel)
 ``.vtp .vtk``                          pyvista
