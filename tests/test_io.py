@@ -713,6 +713,13 @@ def test_cli_sample_option(tmp_path):
         return int(line.split()[1])
 
     assert points() > 100_000
+    import contextlib
+    import io as _io
+
+    buf = _io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        main(["info", str(pc)])
+    assert "42 vertices are sparse for the picture" in buf.getvalue()  # the note is shown
     assert points("--sample", "vertices") == 42
     assert points("--sample", "500") == 500
     for bad in ("0", "-3", "many"):

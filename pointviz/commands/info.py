@@ -49,6 +49,8 @@ def run(args) -> int:
     }
     if cloud.fit_report is not None:
         facts["surface_fit"] = cloud.fit_report["summary"]
+    if cloud.notes:  # what the reader assumed or changed (dropped rows, a mesh sampled...)
+        facts["notes"] = "; ".join(cloud.notes)
     if args.json:
         print(json.dumps(facts, indent=1))
     else:
