@@ -57,13 +57,15 @@ from .settings import check_int
 MAX_EXTENT = 1e30
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, cross=None) -> np.ndarray:
     """Area-weighted vertex normals of a triangle mesh (follows the face winding).
 
     Parameters
     ----------
     vertices : (v, 3) float
     faces : (f, 3) int
+    cross : (f, 3) float, optional
+        The faces' edge cross products (v1 - v0) x (v2 - v0), when the caller has them.
 
     Returns
     -------
@@ -72,7 +74,8 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # |cross| = 2 * area
+    if cross is None:  # |cross| = 2 * area
+        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     # each face's cross product added to its three corners: one weighted count per axis
     corners = f.reshape(-1)
     acc = np.stack([np.bincount(corners, weights=np.repeat(cross[:, k], 3), minlength=len(v))
@@ -127,7 +130,7 @@ def _smooth_sample_normals(v, f, cross, area2, face, wa, wb, wc) -> np.ndarray:
     smooth (every face around it within SMOOTHING_ANGLE_DEG of the vertex normal), else its
     face's own normal: a crease (a box's edge or corner) stays sharp."""
     face_n = cross / np.where(area2 > 0, area2, 1.0)[:, None]
-    vert_n = vertex_normals(v, f)
+    vert_n = vertex_normals(v, f, cross)
     corner_dot = np.stack([np.einsum("ij,ij->i", vert_n[f[:, k]], face_n) for k in range(3)], 1)
     worst = np.ones(len(v))
     np.minimum.at(worst, f.reshape(-1), corner_dot.reshape(-1))

@@ -95,7 +95,7 @@ def load(path, *, sample=None, estimate=True, fit=None, **kw) -> PointCloud:
     unknown = set(kw) - {"rng", "up", "name"}
     if unknown:
         raise InputError(f"load: unknown keyword argument(s) {', '.join(sorted(unknown))}")
-    if sample is not None and not (isinstance(sample, str) and sample == "auto"):
+    if sample is not None and sample != "auto":
         check_int(sample, "sample")
     if estimate not in (True, False, "normals"):
         raise InputError(f"load: estimate must be True, False or 'normals', got {estimate!r}")

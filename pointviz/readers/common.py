@@ -64,6 +64,13 @@ def is_number(token: bytes) -> bool:
     return True
 
 
+def float_color_scale(rgb: np.ndarray) -> float:
+    """What float colours are divided by: 1 when written in [0, 1], 255 when some writer put
+    0-255 values in them (any finite value above 1)."""
+    finite = rgb[np.isfinite(rgb)]
+    return 255.0 if finite.size and finite.max() > 1.0 else 1.0
+
+
 def subsample(cloud_kw: dict, n: int, sample, rng, notes: list[str]) -> dict:
     """Keep a uniformly random subset of ``sample`` rows of every per-point array (``"auto"``:
     all of them; it only samples meshes)."""
@@ -141,13 +148,17 @@ def dense_sample_count(vertices: np.ndarray, faces: np.ndarray) -> int | None:
 
 
 def mesh_cloud(
-    path, vertices, faces, normals=None, colors=None, *, sample=None, rng=None, merge=False, up=None
+    path, vertices, faces, normals=None, colors=None, *, sample=None, rng=None, merge=False, up=None,
+    polygons=0,
 ):
     """A mesh's vertices (normals from the faces unless given) or ``sample`` surface points;
     ``"auto"``: the vertices, or as many surface points as :func:`dense_sample_count` asks for
-    when they are too far apart for the picture (seeded: the same points every time)."""
+    when they are too far apart for the picture (seeded: the same points every time).
+    ``polygons``: how many faces of more than three corners the reader split into fans (noted)."""
     notes: list[str] = []
-    auto = isinstance(sample, str) and sample == "auto"
+    if polygons:
+        notes.append(f"split {polygons} polygons of more than three corners into triangles")
+    auto = sample == "auto"
     if sample is not None and not auto:
         check_points_fit(sample, "sample")
     vertices = np.asarray(vertices, dtype=np.float64)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, require
-from .common import is_number, mesh_cloud
+from .common import float_color_scale, is_number, mesh_cloud
 
 
 def read_mesh(path: Path, sample, rng) -> PointCloud:
@@ -32,14 +32,9 @@ def read_mesh(path: Path, sample, rng) -> PointCloud:
         return mesh_cloud(path, *read_stl(path), None, None, sample=sample, rng=rng, merge=True)
     if ext == ".off":
         vertices, faces, colors, polygons = read_off(path)
-        cloud = mesh_cloud(path, vertices, faces, None, colors, sample=sample, rng=rng)
-        if polygons:
-            cloud.notes.append(f"split {polygons} polygons of more than three corners into "
-                               "triangles")
-        return cloud
+        return mesh_cloud(path, vertices, faces, None, colors, sample=sample, rng=rng,
+                          polygons=polygons)
     raise FileFormatError(f"{path}: not a mesh format pointviz reads")
-
-
 
 
 def _read_obj(path: Path, sample, rng) -> PointCloud:
@@ -58,15 +53,9 @@ def _read_obj(path: Path, sample, rng) -> PointCloud:
         raise FileFormatError(f"{path}: no vertices could be read (empty or unparsable file)")
     colors = mesh["colors"]
     if colors is not None:
-        finite = colors[np.isfinite(colors)]
-        scale = 255.0 if finite.size and finite.max() > 1.0 else 1.0  # 0-255 by some writers
-        colors = np.clip(np.nan_to_num(colors / scale), 0.0, 1.0)
-    cloud = mesh_cloud(path, mesh["vertices"], mesh["triangles"], None, colors, sample=sample,
-                       rng=rng, merge=True)
-    if mesh["polygons"]:
-        cloud.notes.append(f"split {mesh['polygons']} polygons of more than three corners into "
-                           "triangles")
-    return cloud
+        colors = np.clip(np.nan_to_num(colors / float_color_scale(colors)), 0.0, 1.0)
+    return mesh_cloud(path, mesh["vertices"], mesh["triangles"], None, colors, sample=sample,
+                      rng=rng, merge=True, polygons=mesh["polygons"])
 
 
 #: A binary STL record: the facet normal, three corners (float32), an attribute count.
@@ -146,7 +135,7 @@ def read_off(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int
     first = 6 if b"N" in kind else 3
     if b"C" in kind and width >= first + 3:
         colors = table[:, first:first + 3]
-        colors = np.clip(colors / (255.0 if colors.max(initial=0) > 1.0 else 1.0), 0.0, 1.0)
+        colors = np.clip(colors / float_color_scale(colors), 0.0, 1.0)
     triangles, polygons = [], 0
     for k, tokens in enumerate(body[nv:nv + nf]):
         try:

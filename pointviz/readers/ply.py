@@ -15,8 +15,8 @@ from ..errors import FileFormatError, require
 from ..validate import check_points_fit
 from . import table
 from .. import _core
-from .common import (cloud_from_o3d_points, is_number, mesh_cloud, mesh_from_o3d, point_cloud,
-                     quiet_open3d)
+from .common import (cloud_from_o3d_points, float_color_scale, is_number, mesh_cloud,
+                     mesh_from_o3d, point_cloud, quiet_open3d)
 
 # PLY property sizes in bytes
 _PLY_SIZES = {
@@ -400,9 +400,8 @@ def points_from_table(plan: PointsPlan, data) -> dict:
     if len(plan.names) > k:
         rgb = values[:, k:k + 3]
         scale = _COLOR_SCALE.get(plan.types[k])
-        if scale is None:  # float colours: [0, 1] as written, or 0-255 by some writers
-            finite = rgb[np.isfinite(rgb)]
-            scale = 255.0 if finite.size and finite.max() > 1.0 else 1.0
+        if scale is None:  # float colours
+            scale = float_color_scale(rgb)
         out["colors"] = np.clip(rgb / scale, 0.0, 1.0)
     return out
 
@@ -425,7 +424,7 @@ def read_ply(path: Path, sample, rng) -> PointCloud:
     header = _ply_header(path)
     if any(name == "face" and count > 0 for name, count, _ in header["elements"]):
         mesh = mesh_plan(path, header)
-        return _load_ply(path, sample, rng) if mesh is None else read_mesh(mesh, sample, rng)
+        return _load_ply(path, sample, rng) if mesh is None else read_core_mesh(mesh, sample, rng)
     plan = points_plan(path, header=header)
     if plan is None:
         return _load_ply(path, sample, rng)
@@ -464,12 +463,12 @@ def mesh_plan(path: Path, header: dict) -> MeshPlan | None:
              if isinstance(t, tuple) and name in _FACE_INDEX_NAMES]
     if nvert == 0 or any(isinstance(t, tuple) for _, t in vprops) or len(lists) != 1:
         return None
+    size = path.stat().st_size
     if header["format"] == "ascii":
-        _check_ascii_size(path, header, path.stat().st_size)
+        _check_ascii_size(path, header, size)
     else:
         _check_binary_not_text(path, header)
     points = _vertex_plan(path, header, None)
-    size = path.stat().st_size
     if nface > size:  # every face record takes at least one byte
         raise FileFormatError(f"{path}: truncated PLY: the header declares {nface} faces, the "
                               f"file has only {size} bytes")
@@ -495,7 +494,7 @@ def mesh_plan(path: Path, header: dict) -> MeshPlan | None:
     return MeshPlan(points, spec)
 
 
-def read_mesh(plan: MeshPlan, sample, rng) -> PointCloud:
+def read_core_mesh(plan: MeshPlan, sample, rng) -> PointCloud:
     """The PointCloud of a planned PLY mesh: its vertices (normals from the file, else from the
     faces) or ``sample`` points on its faces, as :func:`pointviz.readers.common.mesh_cloud`."""
     path = plan.points.path
@@ -512,12 +511,8 @@ def read_mesh(plan: MeshPlan, sample, rng) -> PointCloud:
         raise FileFormatError(f"{path}: corrupt PLY mesh: {exc}") from None
     except RuntimeError as exc:
         raise FileFormatError(f"{path}: could not read the PLY faces ({exc})") from None
-    cloud = mesh_cloud(path, arrays["points"], faces["triangles"], arrays["normals"],
-                       arrays["colors"], sample=sample, rng=rng)
-    if faces["polygons"]:
-        cloud.notes.append(f"split {faces['polygons']} polygons of more than three corners "
-                           "into triangles")
-    return cloud
+    return mesh_cloud(path, arrays["points"], faces["triangles"], arrays["normals"],
+                      arrays["colors"], sample=sample, rng=rng, polygons=faces["polygons"])
 
 
 def _load_ply(path: Path, sample, rng) -> PointCloud:

@@ -20,7 +20,7 @@ import numpy as np
 from ..cloud import PointCloud
 from ..errors import FileFormatError
 from . import table
-from .common import point_cloud, read_o3d_points
+from .common import float_color_scale, point_cloud, read_o3d_points
 
 #: Values a line must start with, per extension.
 TEXT_COLUMNS = {".xyz": 3, ".xyzn": 6, ".xyzrgb": 6}
@@ -47,6 +47,5 @@ def read_text(path: Path, sample, rng) -> PointCloud:
     colors = None
     if ext == ".xyzrgb":
         rgb = values[:, 3:6]
-        finite = rgb[np.isfinite(rgb)]
-        colors = np.clip(rgb / (255.0 if finite.size and finite.max() > 1.0 else 1.0), 0.0, 1.0)
+        colors = np.clip(rgb / float_color_scale(rgb), 0.0, 1.0)
     return point_cloud(path, values[:, :3], normals, colors, sample=sample, rng=rng)
