@@ -239,13 +239,13 @@ def half_dark_sphere(n=6000):
 
 def test_path_frames_share_one_metered_exposure(tmp_path):
     """The frames' own automatic exposures would swing (the oracle: render() of each camera);
-    the path's frames share one, the geometric mean of the metering views' (an independent
+    the path's frames share one, the geometric mean of the metering views' own (an independent
     render of each view that path_exposure picks), and the backdrop stays put."""
     from math import exp, fsum, log
 
     from PIL import Image
 
-    from pointviz.path.exposure import METER_SCALE, METER_SPP, meter_cameras
+    from pointviz.path.exposure import meter_cameras
 
     scene = half_dark_sphere()
     path = CameraPath.orbit(scene, seconds=2.0, fps=6, width=W, height=H, easing="linear")  # 13
@@ -253,9 +253,8 @@ def test_path_frames_share_one_metered_exposure(tmp_path):
     assert max(own) / min(own) > 2.0  # one exposure per frame would pump by that much
     summary = render_path(scene, path, tmp_path, progress=False, **SETTINGS)
     views = meter_cameras([c.to_dict() for c in path.cameras()])
-    assert len(views) == 9 and (views[0].width, views[0].height) == (W // 2, H // 2)
-    metering = {**SETTINGS, "spp": METER_SPP, "lod_pixels": 1.0 * METER_SCALE}
-    metered = [render(scene, v, **metering).exposure for v in views]
+    assert len(views) == 9 and (views[0].width, views[0].height) == (W, H)
+    metered = [render(scene, v, **SETTINGS).exposure for v in views]
     assert summary["exposure"] == pytest.approx(exp(fsum(map(log, metered)) / 9), rel=1e-12)
     assert min(own) < summary["exposure"] < max(own)
     frames = [np.asarray(Image.open(f)) for f in frame_files(tmp_path)]
@@ -301,29 +300,32 @@ def test_meter_cameras_pick_the_ends_and_spread_evenly():
     picked = [round(c.eye[0]) for c in meter_cameras(cams)]
     assert len(picked) == METER_VIEWS and picked[0] == 0 and picked[-1] == 39
     assert max(np.diff(picked)) - min(np.diff(picked)) <= 1
-    assert [(c.width, c.height) for c in meter_cameras(cams[:1])] == [(5, 4)]
+    assert [(c.width, c.height) for c in meter_cameras(cams[:1])] == [(10, 7)]
     assert [round(c.eye[0]) for c in meter_cameras(cams[:3])] == [0, 1, 2]
 
 
-@pytest.mark.parametrize("given, metered", [({}, 0.5), ({"lod_pixels": 4}, 2.0),
-                                            ({"lod_pixels": 0}, 0.0), ({"lod_pixels": "auto"}, "auto")])
-def test_path_exposure_meters_with_the_threshold_scaled(monkeypatch, given, metered):
-    """Each metering view takes the frames' settings at half size, one sample and no denoiser;
-    a numeric threshold, the default one included, is halved with the size (the same nodes
-    stop), the budget's "auto" is kept."""
+@pytest.mark.parametrize("given", [{}, {"lod_pixels": 4}, {"lod_pixels": "auto"},
+                                   {"shadows": False, "reflections": 0, "look": "outdoor"}])
+def test_path_exposure_meters_each_view_as_render_would(monkeypatch, given):
+    """Each metering view goes to metered_exposure (what render() gives that view) with the
+    frames' settings as given: their level of detail, samples and denoiser do not enter it."""
     import pointviz.rendering
-    from pointviz.path.exposure import METER_SPP, path_exposure
+    from pointviz.path.exposure import path_exposure
 
     seen = []
 
-    def fake_render(scene, cam, cancel=None, **kw):
-        seen.append(kw)
-        return type("F", (), {"exposure": 0.5})()
+    def fake_meter(scene, cam, cancel=None, **kw):
+        seen.append((cam, kw))
+        return 0.5
 
-    monkeypatch.setattr(pointviz.rendering, "render", fake_render)
+    monkeypatch.setattr(pointviz.rendering, "metered_exposure", fake_meter)
     cams = [c.to_dict() for c in CameraPath.orbit(half_dark_sphere(500), seconds=1.0, fps=3,
                                                    width=W, height=H).cameras()]
     assert path_exposure(None, cams, {"spp": 8, "denoise": True, **given}) == pytest.approx(0.5)
     assert len(seen) == len(cams)
-    assert all(kw["lod_pixels"] == metered and kw["spp"] == METER_SPP and kw["denoise"] is False
-               and kw["exposure"] is None for kw in seen)
+    assert [c.to_dict() for c, _ in seen] == cams
+    for _, kw in seen:
+        assert kw["spp"] == 8 and kw["denoise"] is True and kw["exposure"] is None
+        assert all(kw[k] == v for k, v in given.items())
+
+

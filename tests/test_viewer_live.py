@@ -107,14 +107,15 @@ def test_live_frames_match_direct_renders():
         np.testing.assert_allclose(still.frame.color, whole.color, rtol=ACCUMULATION_RTOL,
                                    atol=1e-5)
         np.testing.assert_allclose(still.frame.alpha, whole.alpha, atol=1e-5)
+        assert still.frame.exposure == whole.exposure  # metered alike, whatever the samples
     finally:
         assert lr.shutdown()
     assert errors.empty()
 
 
 def test_a_given_exposure_is_kept_by_moving_and_accumulated_frames():
-    """The accumulated still frame re-meters the automatic exposure over all its samples, but
-    an exposure the settings give is the user's: every live frame keeps it."""
+    """An exposure the settings give is the user's: every live frame keeps it, moving and
+    accumulated."""
     scene, cam = small_scene(), camera(64, 48)
     lr, frames, errors = collect(scene, threads=2, denoise=False)
     try:

@@ -19,43 +19,34 @@ from ..camera import Camera
 #: Views metered along a path (evenly spaced by frame, the first and the last included; every
 #: frame of a shorter path).
 METER_VIEWS = 9
-#: Size of a metering view relative to the frames' (each side), and its samples per pixel: the
-#: mean luminance of the objects' pixels does not need more (it is unbiased by sampling noise).
-METER_SCALE = 0.5
-METER_SPP = 1
 
 
 def meter_cameras(cameras: list[dict]) -> list[Camera]:
     """The views :func:`path_exposure` meters: METER_VIEWS of ``cameras`` (camera dicts, one per
-    frame) evenly spaced by frame, at METER_SCALE of their size."""
+    frame) evenly spaced by frame."""
     n = len(cameras)
     k = min(n, METER_VIEWS)
     picks = sorted({round(i * (n - 1) / (k - 1)) for i in range(k)}) if k > 1 else [0]
-    out = []
-    for i in picks:
-        cam = Camera.from_dict(cameras[i])
-        out.append(cam.with_size(max(1, round(cam.width * METER_SCALE)),
-                                 max(1, round(cam.height * METER_SCALE))))
-    return out
+    return [Camera.from_dict(cameras[i]) for i in picks]
 
 
 def path_exposure(scene: Any, cameras: list[dict], render_kwargs: dict, cancel: Any = None) -> float:
     """The exposure every frame of a path shares: the geometric mean of the automatic exposures
     of the views :func:`meter_cameras` picks (halfway, in stops, between the brightest and the
-    darkest view's own), each rendered as the frames are but at METER_SCALE of their size (a
-    numeric level-of-detail threshold scaled with it, so that the same nodes stop), METER_SPP
-    sample per pixel and no denoiser. 1 when the look has no automatic exposure (flat).
+    darkest view's own), each the one :func:`pointviz.render` would give that view on its own
+    (:func:`pointviz.rendering.metered_exposure`: a small full-detail pass of it, whatever the
+    frames' level of detail, samples or denoiser). 1 when the look has no automatic exposure
+    (flat).
 
     A deterministic function of the scene, the cameras and the image settings (``threads``
     does not enter), so a resumed or distributed render finds the same value.
     """
-    from ..rendering import render
+    from .. import rendering
     from ..settings import RenderSettings
 
-    # the settings in full: a threshold left at its default is scaled too
-    opts = RenderSettings.from_kwargs(render_kwargs, "render_path")
-    lod = opts.lod_pixels if opts.lod_pixels == "auto" else opts.lod_pixels * METER_SCALE
-    kw = opts.replace(spp=METER_SPP, denoise=False, exposure=None, lod_pixels=lod).render_kwargs()
-    logs = [math.log(render(scene, cam, cancel=cancel, **kw).exposure)
+    # the settings in full (validated; what metering reads of them)
+    kw = RenderSettings.from_kwargs(render_kwargs, "render_path").replace(exposure=None)
+    kw = kw.render_kwargs()
+    logs = [math.log(rendering.metered_exposure(scene, cam, cancel=cancel, **kw))
             for cam in meter_cameras(cameras)]
     return math.exp(math.fsum(logs) / len(logs))

@@ -484,8 +484,10 @@ class _Accumulator:
         self.seconds_per_sample = seconds / n
 
     def frame(self, last):
-        """The mean as a :class:`~pointviz.rendering.Frame` (float32 buffers)."""
-        from ..images import auto_exposure
+        """The mean as a :class:`~pointviz.rendering.Frame` (float32 buffers), exposed as the
+        passes are: the settings' exposure, or the automatic one, which render() meters on a
+        full-detail pass of the view whatever the samples (the same for every pass), so that the
+        accumulated frame is exposed as ``render(spp=N)`` exposes it."""
         from ..rendering import Frame
 
         inv = 1.0 / self.spp
@@ -495,9 +497,6 @@ class _Accumulator:
         out = Frame(m["color"], self.depth, self.normal, m["alpha"], stats, self.camera,
                     albedo=m.get("albedo"), object_alpha=m.get("object_alpha"),
                     exposure=last.exposure)
-        given = stats.get("settings", {}).get("exposure")  # the user's: kept as it is
-        if given is None and (last.exposure != 1.0 or stats.get("auto_exposure")):
-            out.exposure = auto_exposure(out.color, out.object_alpha)
         return out
 
 
