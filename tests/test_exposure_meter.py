@@ -16,8 +16,8 @@ import pytest
 from pointviz import Camera, PointCloud, render
 from pointviz.errors import CancelledError, InputError
 from pointviz.images import EXPOSURE_COVERAGE, auto_exposure
-from pointviz.rendering import (METER_MIN_COVERED, METER_PIXELS, meter_divisor, meter_size,
-                                metered_exposure)
+from pointviz.rendering import (METER_CROP, METER_MIN_COVERED, METER_PIXELS, meter_crop,
+                                meter_divisor, meter_size, metered_exposure)
 from pointviz.scene import Scene
 from pointviz.shapes import sphere
 
@@ -33,10 +33,19 @@ def scene():
     return Scene([PointCloud(ball.points, ball.normals, colors=colors)], up=(0, 1, 0))
 
 
-def view(scene, width=160, height=120, distance=1.0):
-    """A view of the sphere from the lit, white side's edge, ``distance`` x the near one."""
-    return Camera(eye=(1.2 * distance, 0.5 * distance, 1.6 * distance), target=(0.0, 0.0, 0.0),
-                  width=width, height=height)
+def view(scene, width=160, height=120, distance=1.0, aside=0.0):
+    """A view of the sphere from the lit, white side's edge, ``distance`` x the near one;
+    ``aside``: the target moved that far to the view's right (the sphere toward the left)."""
+    eye = np.array([1.2, 0.5, 1.6]) * distance
+    right = np.cross(-eye / np.linalg.norm(eye), (0.0, 1.0, 0.0))
+    target = aside * right / np.linalg.norm(right)
+    return Camera(eye=tuple(eye), target=tuple(target), width=width, height=height)
+
+
+def own_exposure(scene, cam, **kw):
+    """auto_exposure of the frame's own pixels at full detail, one sample per pixel."""
+    f = render(scene, cam, spp=1, lod_pixels=0, exposure=1.0, **{**SETTINGS, **kw})
+    return auto_exposure(f.color, f.object_alpha)
 
 
 def pass_exposure(scene, cam, divisor, **kw):
@@ -48,7 +57,7 @@ def pass_exposure(scene, cam, divisor, **kw):
     return auto_exposure(frame.color, frame.object_alpha), covered
 
 
-@pytest.mark.parametrize("size", [(640, 480), (480, 360), (1920, 1080), (81, 60), (64, 48),
+@pytest.mark.parametrize("size", [(640, 480), (480, 360), (1920, 1080), (81, 60), (40, 30),
                                   (1, 1), (5000, 1), (7, 100000)])
 def test_meter_size_is_the_smallest_divisor_within_the_pixel_count(size):
     w, h = size
@@ -60,21 +69,89 @@ def test_meter_size_is_the_smallest_divisor_within_the_pixel_count(size):
         assert (mw, mh) == (w, h)
 
 
-def test_every_frame_of_a_view_is_exposed_alike(scene):
+VARIANTS = [dict(lod_pixels=0, spp=4), dict(lod_pixels=0, spp=1), dict(lod_pixels=1.0, spp=2),
+            dict(lod_pixels=8.0, spp=1), dict(lod_pixels="auto", max_error=0.02, spp=1)]
+
+
+def test_every_frame_of_a_near_view_is_exposed_alike(scene):
     """Full detail at 4 spp and 1 spp, fixed thresholds and the error budget: one exposure, the
-    metering pass's (640x480: an 80x60 pass)."""
+    metering pass's (640x480: a 40x30 pass), close to the frame's own pixels'."""
     cam = view(scene, 640, 480)
-    assert meter_size(640, 480) == (80, 60)
+    assert meter_size(640, 480) == (40, 30) and meter_crop(cam, scene.bounds()) is None
     expected, covered = pass_exposure(scene, cam, meter_divisor(640, 480))
     assert covered >= METER_MIN_COVERED
-    variants = [dict(lod_pixels=0, spp=4), dict(lod_pixels=0, spp=1), dict(lod_pixels=1.0, spp=2),
-                dict(lod_pixels=8.0, spp=1), dict(lod_pixels="auto", max_error=0.02, spp=1)]
-    exposures = [render(scene, cam, **v, **SETTINGS).exposure for v in variants]
-    assert exposures == [expected] * len(variants)
+    exposures = [render(scene, cam, **v, **SETTINGS).exposure for v in VARIANTS]
+    assert exposures == [expected] * len(VARIANTS)
     assert metered_exposure(scene, cam, **SETTINGS) == expected
-    # and it keys the frame as its own pixels would, within the pass's sampling of the mean
-    full = render(scene, cam, lod_pixels=0, spp=4, **SETTINGS)
-    assert auto_exposure(full.color, full.object_alpha) == pytest.approx(expected, rel=0.03)
+    assert own_exposure(scene, cam) == pytest.approx(expected, rel=0.03)
+
+
+def test_a_far_object_is_metered_on_a_crop_of_its_sphere(scene):
+    """Where the objects' bounding sphere lies inside the view and would be small in the pass,
+    a square crop at the frame's eye sees it edge to edge: every frame of the view takes its
+    exposure, which keys the object as the frame's own pixels would."""
+    for distance in (3.0, 9.0):
+        cam = view(scene, 640, 480, distance)
+        crop = meter_crop(cam, scene.bounds())
+        assert crop is not None and (crop.width, crop.height) == (METER_CROP, METER_CROP)
+        np.testing.assert_allclose(crop.eye, cam.eye)
+        lo, hi = scene.bounds()
+        np.testing.assert_allclose(crop.target, 0.5 * (lo + hi))
+        exposures = [render(scene, cam, **v, **SETTINGS).exposure for v in VARIANTS]
+        assert len(set(exposures)) == 1
+        assert own_exposure(scene, cam) == pytest.approx(exposures[0], rel=0.06)
+
+
+def test_a_small_full_detail_frame_is_metered_on_its_own_pixels(scene):
+    cam = view(scene, 40, 30)
+    frame = render(scene, cam, spp=1, lod_pixels=0, **SETTINGS)
+    assert frame.exposure == auto_exposure(frame.color, frame.object_alpha)
+    # the same view with level of detail or more samples meters a pass of the same size
+    assert render(scene, cam, spp=3, lod_pixels=2.0, **SETTINGS).exposure == frame.exposure
+
+
+def test_a_far_object_at_the_edge_is_metered_on_larger_passes(scene):
+    """A far object that crosses the frame's edge gets no crop; where it covers fewer than
+    METER_MIN_COVERED pixels of the pass, the pass is taken again at twice the size each way:
+    the exposure is that of the first pass that sees enough of it."""
+    cam = view(scene, 640, 480, 9.0, aside=8.25)
+    assert meter_crop(cam, scene.bounds()) is None
+    s = meter_divisor(640, 480)
+    first, covered = pass_exposure(scene, cam, s)
+    assert 0 < covered < METER_MIN_COVERED  # the case under test
+    while s > 1:
+        s //= 2
+        expected, covered = pass_exposure(scene, cam, s)
+        if covered >= METER_MIN_COVERED:
+            break
+    assert covered >= METER_MIN_COVERED and expected != first
+    assert [render(scene, cam, **v, **SETTINGS).exposure for v in VARIANTS[1:3]] == [expected] * 2
+    assert own_exposure(scene, cam) == pytest.approx(expected, rel=0.06)
+
+
+def test_a_view_is_metered_once(scene, monkeypatch):
+    """The frames of one view (the viewer's passes, a benchmark's variants) meter it once: the
+    exposure is kept with the view's full-detail RenderScene. A changed setting that changes
+    the picture meters again."""
+    from pointviz import _core, rendering
+
+    calls = []
+    real = _core.render
+
+    def counting(rs, cam, settings, poll, **kw):
+        calls.append((cam.width, cam.height, settings.spp, settings.lod_pixels))
+        return real(rs, cam, settings, poll, **kw)
+
+    monkeypatch.setattr(rendering._core, "render", counting)
+    cam = view(scene, 320, 240, 1.5)
+    assert meter_crop(cam, scene.bounds()) is None
+    first = render(scene, cam, spp=2, **SETTINGS).exposure
+    assert len(calls) == 2 and calls[1][2:] == (1, 0.0)  # the frame, then its metering pass
+    again = [render(scene, cam, **v, **SETTINGS).exposure for v in VARIANTS]
+    assert again == [first] * len(VARIANTS) and len(calls) == 2 + len(VARIANTS)
+    other = render(scene, cam, spp=2, shadows=False, **SETTINGS).exposure
+    assert len(calls) == 2 + len(VARIANTS) + 2
+    assert other == pass_exposure(scene, cam, meter_divisor(320, 240), shadows=False)[0]
 
 
 def test_the_metering_follows_the_settings_that_change_the_picture(scene):
@@ -89,33 +166,6 @@ def test_the_metering_follows_the_settings_that_change_the_picture(scene):
     assert render(scene, cam, look="flat", **SETTINGS).exposure == 1.0
 
 
-def test_a_small_full_detail_frame_is_metered_on_its_own_pixels(scene):
-    cam = view(scene, 64, 48)
-    frame = render(scene, cam, spp=1, lod_pixels=0, **SETTINGS)
-    assert frame.exposure == auto_exposure(frame.color, frame.object_alpha)
-    # the same view with level of detail or more samples meters a pass of the same size
-    assert render(scene, cam, spp=3, **SETTINGS).exposure == frame.exposure
-
-
-def test_a_far_object_is_metered_on_a_larger_pass(scene):
-    """Where the objects cover fewer than METER_MIN_COVERED pixels of the pass, it is taken
-    again at twice the size each way: the exposure is that of the first pass that sees enough
-    of them."""
-    cam = view(scene, 640, 480, distance=9.0)
-    s = meter_divisor(640, 480)
-    first, covered = pass_exposure(scene, cam, s)
-    assert 0 < covered < METER_MIN_COVERED  # the case under test
-    while s > 1:
-        s //= 2
-        expected, covered = pass_exposure(scene, cam, s)
-        if covered >= METER_MIN_COVERED:
-            break
-    assert covered >= METER_MIN_COVERED and expected != first
-    assert render(scene, cam, spp=1, **SETTINGS).exposure == expected
-    full = render(scene, cam, lod_pixels=0, spp=1, exposure=1.0, **SETTINGS)
-    assert auto_exposure(full.color, full.object_alpha) == pytest.approx(expected, rel=0.05)
-
-
 def test_metering_checks_its_camera_and_can_be_cancelled(scene):
     with pytest.raises(InputError, match="camera"):
         metered_exposure(scene, None)
@@ -124,4 +174,4 @@ def test_metering_checks_its_camera_and_can_be_cancelled(scene):
     stop = threading.Event()
     stop.set()
     with pytest.raises(CancelledError):
-        metered_exposure(scene, view(scene), cancel=stop)
+        metered_exposure(scene, view(scene, 64, 48, 1.2), cancel=stop)
