@@ -18,11 +18,16 @@ from .settings import DEFAULT_MAX_ERROR, DEFAULTS, RenderSettings, check_int, ch
 #: priority then wins the CPU whenever it has work (weight 1024 against 110 for nice 10 under
 #: Linux CFS), and the tracer still gets every cycle the GUI leaves.
 BACKGROUND_NICE = 10
-#: Largest factor budget_scale gives. The looks' automatic exposure follows the object's mean
-#: radiance, so what the object's pixels lose moves every pixel of the frame: a 200k striped
-#: torus at 7.5x (160x120) costs FLIP 0.0012 at 16x and 0.029 at 48x (exposure 3.7 % off; at
-#: the full-detail frame's exposure 0.0009).
-MAX_BUDGET_SCALE = 16.0
+#: Largest factor budget_scale gives. It was 16 while the automatic exposure followed the
+#: frame's own pixels (what the object's pixels lost moved every pixel of the frame: a 200k
+#: striped torus at 7.5x, 160x120, cost FLIP 0.0012 at 16x and 0.029 at 48x, 0.0009 at the
+#: full-detail frame's exposure). Metered at full detail (:func:`metered_exposure`), 32 took
+#: the far views' (7.5x) budget frames from FLIP 0.0011 / 0.0006 to 0.0021 / 0.0011 on the
+#: dragon's raw scans and the Armadillo, 0.0035 -> 0.0036 on the 8M striped torus, and on
+#: models held out of every calibration to 0.0010 (the bunny's raw scans, Lucy) and 0.0006
+#: (the drill's scans), E = 0.005 (benchmarks/README.md, "Issue 18, the far views' budget
+#: once the exposure holds still").
+MAX_BUDGET_SCALE = 32.0
 #: Mean FLIP per pixel the objects cover that footprint-sized offsets on rays leaving a surface
 #: cost (RenderSettings.footprint_offsets: a footprint above the surface, hits within two
 #: footprints ignored, as the size rule's rays start). Measured on the 8M striped torus (studio
@@ -33,6 +38,8 @@ OFFSETS_PIXEL_ERROR = 0.0151
 #: The share of the budget above its floor (lod.h: kBudgetFloor) the offsets may take, as each
 #: kind of secondary ray's visibility model may (lod.h: kShadowFlipWeight).
 OFFSETS_BUDGET_SHARE = 0.25
+#: Largest share scale the offsets' rule takes (OFFSETS_PIXEL_ERROR was measured up to 16).
+OFFSETS_MAX_SCALE = 16.0
 #: The error of a frame in which nothing stops (the core's lod.h: kBudgetFloor).
 BUDGET_FLOOR = _core.BUDGET_FLOOR
 
@@ -194,12 +201,13 @@ def footprint_offsets(lod_pixels, max_error: float | None, share_scale: float | 
     shadow and sky-visibility rays the full-detail nodes around their origin, which the
     visibility model never stops at (lod.h: kVisibilityClearance): the far frames' shadow phase
     drops below the 1 px frame's. E = 0.005 takes them from share_scale 13.4 (the striped torus
-    at 7.5x), none below E = 0.0043 (budget_scale is at most MAX_BUDGET_SCALE).
+    at 7.5x), none below E = 0.0043 (the share scale is taken at most OFFSETS_MAX_SCALE).
     """
     if lod_pixels != "auto":
         return True
     if not max_error or share_scale is None:
         return False
+    share_scale = min(share_scale, OFFSETS_MAX_SCALE)
     return OFFSETS_PIXEL_ERROR / share_scale <= OFFSETS_BUDGET_SHARE * (max_error - BUDGET_FLOOR)
 
 
