@@ -262,9 +262,12 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     exposure : float, optional
         The frame's exposure multiplier (``frame.exposure``: what :meth:`Frame.save` and the
         denoiser apply). Default: the look's, automatic (the objects' mean luminance keyed to
-        ``pointviz.images.EXPOSURE_KEY``) for studio and outdoor, 1 for flat. Frames meant to
-        be seen together (a camera path, a comparison) should share one: each view's own
-        automatic exposure brightens or darkens the backdrop with what the objects show.
+        ``pointviz.images.EXPOSURE_KEY``) for studio and outdoor, 1 for flat. The automatic
+        exposure is metered on a small full-detail pass of the view (:func:`metered_exposure`),
+        so every frame of one view is exposed alike whatever its level of detail, samples or
+        denoiser. Frames of different views meant to be seen together (a camera path, a
+        comparison) should share one: each view's own automatic exposure brightens or darkens
+        the backdrop with what the objects show.
     denoise : bool, {"high", "balanced", "fast"} or pointviz.denoise.Denoiser
         Denoise the colour with Intel Open Image Denoise guided by the albedo and normal
         buffers (needs the ``denoise`` extra: ``pip install 'pointviz[denoise]'``); True is
@@ -419,6 +422,32 @@ def metered_exposure(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows
     return _metered_exposure(scene_or_cloud, kw, camera, opts, _cancel_check(cancel))
 
 
+def _sphere_in_view(camera, bounds):
+    """Where the sphere around ``bounds`` (lo, hi) lies against the camera's view: ("inside",
+    centre, radius, distance) when wholly inside its four side planes and in front of the eye,
+    ("outside", ...) when wholly outside one of them or behind the eye, ("across", ...)
+    otherwise; None when the bounds are not finite or the eye is within the sphere."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    to_c = centre - np.asarray(camera.eye, dtype=np.float64)
+    dist = float(np.linalg.norm(to_c))
+    if not (np.isfinite(dist) and np.isfinite(radius) and dist > radius > 0.0):
+        return None
+    x, y = to_c @ np.asarray(camera.right), to_c @ np.asarray(camera.true_up)
+    z = to_c @ np.asarray(camera.forward)
+    th = float(camera.tan_half)
+    tw = th * camera.width / camera.height
+    # signed distances of the centre to the four side planes, positive outside
+    sides = [(a - z * t) / np.sqrt(1.0 + t * t) for a, t in ((x, tw), (-x, tw), (y, th), (-y, th))]
+    if z < -radius or max(sides) >= radius:
+        where = "outside"
+    elif z > radius and max(sides) <= -radius:
+        where = "inside"
+    else:
+        where = "across"
+    return where, centre, radius, dist
+
+
 def meter_crop(camera, bounds):
     """The square camera a far object's exposure is metered with, or None: at the frame's eye,
     looking at the centre of the sphere around ``bounds`` (lo, hi) and seeing it edge to edge,
@@ -427,20 +456,12 @@ def meter_crop(camera, bounds):
     frame's metering pass (:func:`meter_size`) would see it less than METER_CROP pixels wide."""
     from .camera import Camera
 
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
-    centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
-    eye = np.asarray(camera.eye, dtype=np.float64)
-    to_c = centre - eye
-    dist = float(np.linalg.norm(to_c))
-    if not (np.isfinite(dist) and np.isfinite(radius) and dist > radius > 0.0):
+    place = _sphere_in_view(camera, bounds)
+    if place is None or place[0] != "inside":
         return None
-    x, y = to_c @ np.asarray(camera.right), to_c @ np.asarray(camera.true_up)
-    z = to_c @ np.asarray(camera.forward)
+    _, centre, radius, dist = place
     th = float(camera.tan_half)
-    tw = th * camera.width / camera.height
-    for a, t in ((x, tw), (-x, tw), (y, th), (-y, th)):  # the frustum's four side planes
-        if (a - z * t) / np.sqrt(1.0 + t * t) > -radius:
-            return None
+    eye = np.asarray(camera.eye, dtype=np.float64)
     half = float(np.arcsin(radius / dist))
     if np.tan(half) / th * meter_size(camera.width, camera.height)[1] >= METER_CROP:
         return None
@@ -454,8 +475,11 @@ def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled, own=
     other settings (shadows, reflections, ground, look, sides, seed, and the lights the frame's
     camera places). The pass: a far object's :func:`meter_crop`, else the frame at
     :func:`meter_size`; a pass in which the objects cover fewer than METER_MIN_COVERED pixels
-    is taken again at twice the size each way, up to the frame's own. ``own``: the frame
-    itself, when it is such a pass of its own size.
+    is taken again at twice the size each way, up to half the frame's (a quarter of its
+    pixels), unless the objects' bounding sphere lies wholly outside the view (then the pass's
+    whole frame keys it, as :func:`pointviz.images.auto_exposure` does where no object shows).
+    ``own``: the frame itself, when it is a pass of its own size (a frame of at most
+    METER_PIXELS at full detail and one sample).
 
     Every frame of a view is exposed alike whatever its level of detail or samples: a coarser
     level of detail changes what the objects' pixels show a little (lod_pixels="auto" bounds
@@ -515,14 +539,17 @@ def _meter(rs, origin, bounds, camera, opts, is_cancelled, own) -> float:
         exposure, covered = meter(crop)
         if covered >= METER_MIN_COVERED:
             return exposure
+    place = _sphere_in_view(camera, bounds)
+    in_view = place is None or place[0] != "outside"
     s = meter_divisor(camera.width, camera.height)
     while True:
         if s == 1 and own is not None:
             return auto_exposure(own.color, own.object_alpha)
         exposure, covered = meter(camera.with_size(*meter_size(camera.width, camera.height, s)))
-        if s == 1 or covered >= METER_MIN_COVERED:
+        # larger passes only while the objects may show, and never the frame's own size
+        if covered >= METER_MIN_COVERED or not in_view or s <= 2:
             return exposure
-        s = max(1, s // 2)
+        s //= 2
 
 
 #: Where _core_scene keeps its answers: on the Scene (its memo) or on the SurfelScene a frame was

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pointviz.rendering import MAX_BUDGET_SCALE
+
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
 #: A quick run takes seconds; this bounds a hung run on a heavily shared machine.
@@ -116,5 +118,5 @@ def test_lod_refusals_quick_accounts_for_every_ancestor(shared_data, tmp_path):
     for r in res["rows"]:
         assert set(r["ancestors"]) == {"no_cone", "colour", "spread", "stop"}
         assert 0.0 <= r["share_may_stop"] <= r["share_in_cap"] <= 1.0
-        assert 1.0 <= r["budget_scale"] <= 16.0
+        assert 1.0 <= r["budget_scale"] <= MAX_BUDGET_SCALE
         assert all(0.0 <= v <= 1.0 for v in r["flip"].values())

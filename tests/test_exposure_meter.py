@@ -175,3 +175,27 @@ def test_metering_checks_its_camera_and_can_be_cancelled(scene):
     stop.set()
     with pytest.raises(CancelledError):
         metered_exposure(scene, view(scene, 64, 48, 1.2), cancel=stop)
+
+
+def test_a_view_without_the_objects_is_metered_on_one_small_pass(scene, monkeypatch):
+    """Looking away from every object: one pass of METER_PIXELS keys the whole frame (no larger
+    passes for objects that cannot show), and a pass is never the frame's own size."""
+    from pointviz import _core, rendering
+
+    sizes = []
+    real = _core.render
+
+    def counting(rs, cam, settings, poll, **kw):
+        sizes.append((cam.width, cam.height))
+        return real(rs, cam, settings, poll, **kw)
+
+    monkeypatch.setattr(rendering._core, "render", counting)
+    away = Camera(eye=(3.0, 0.5, 4.0), target=(6.0, 0.5, 8.0), width=640, height=480)
+    exposure = render(scene, away, spp=1, **SETTINGS).exposure
+    assert sizes == [(640, 480), meter_size(640, 480)]
+    expected, covered = pass_exposure(scene, away, meter_divisor(640, 480))
+    assert covered == 0 and exposure == expected
+    sizes.clear()
+    edge = view(scene, 640, 480, 9.0, aside=8.25)  # crosses the frame's edge: larger passes
+    render(scene, edge, spp=1, seed=5, **SETTINGS)
+    assert len(sizes) > 2 and all(w <= 320 and h <= 240 for w, h in sizes[1:])
