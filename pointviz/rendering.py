@@ -364,10 +364,7 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     if opts.exposure is not None:
         frame.exposure = opts.exposure
     elif scene_look.auto_exposure:  # the mean is unbiased by noise: same with or without denoising
-        own = (settings.lod_pixels == 0.0 and spp == 1 and settings.sample_offset == 0
-               and settings.sequence_spp == 1)
-        frame.exposure = _metered_exposure(
-            scene_or_cloud, kw, camera, opts, is_cancelled, frame if own else None)
+        frame.exposure = _metered_exposure(scene_or_cloud, kw, camera, opts, is_cancelled)
     if quality is not None:
         from .denoise import denoise_frame
 
@@ -377,8 +374,10 @@ def render(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
     return frame
 
 
-#: Pixels of the pass the automatic exposure is metered on (at most; :func:`meter_size`).
+#: Pixels of the pass the automatic exposure is metered on (about; :func:`meter_size`).
 METER_PIXELS = 1200
+#: Largest scale of that pass, each way, where the objects cover too few of its pixels.
+METER_MAX_SCALE = 4
 #: Side of the square pass a far object is metered on (:func:`meter_crop`).
 METER_CROP = 20
 #: Fewest pixels of that pass the objects must cover (else it is taken again, larger): the
@@ -386,21 +385,15 @@ METER_CROP = 20
 METER_MIN_COVERED = 32
 
 
-def meter_size(width: int, height: int, divisor: int | None = None) -> tuple[int, int]:
-    """Size of the pass a ``width`` x ``height`` frame's automatic exposure is metered on: the
-    frame's divided (rounding up) by ``divisor``, by default the smallest integer that brings it
-    to at most METER_PIXELS pixels (640x480: 40x30; a frame of at most METER_PIXELS: its own)."""
-    if divisor is None:
-        divisor = meter_divisor(width, height)
-    return -(-width // divisor), -(-height // divisor)
-
-
-def meter_divisor(width: int, height: int) -> int:
-    """The smallest integer dividing both sides (rounding up) to at most METER_PIXELS pixels."""
-    s = max(1, int(np.sqrt(width * height / METER_PIXELS)))  # a lower bound
-    while -(-width // s) * -(-height // s) > METER_PIXELS:
-        s += 1
-    return s
+def meter_size(width: int, height: int, scale: int = 1) -> tuple[int, int]:
+    """Size of the pass a ``width`` x ``height`` frame's automatic exposure is metered on: about
+    METER_PIXELS pixels of the frame's aspect (4:3: 40x30), times ``scale`` each way. It
+    depends on the frame's aspect, not on its resolution: a view's frames at any size (the
+    viewer's reduced moving frames and its full still ones, a thumbnail and the final Render)
+    meter the same pass and take the same exposure."""
+    aspect = width / height
+    return (max(1, round(float(np.sqrt(METER_PIXELS * aspect)))) * scale,
+            max(1, round(float(np.sqrt(METER_PIXELS / aspect)))) * scale)
 
 
 def metered_exposure(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows,
@@ -469,24 +462,22 @@ def meter_crop(camera, bounds):
                           width=METER_CROP, height=METER_CROP)
 
 
-def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled, own=None) -> float:
+def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled) -> float:
     """The automatic exposure of a frame: :func:`pointviz.images.auto_exposure` of a pass of the
     same view at full detail, one sample per pixel (its centre), no denoiser, and the frame's
     other settings (shadows, reflections, ground, look, sides, seed, and the lights the frame's
-    camera places). The pass: a far object's :func:`meter_crop`, else the frame at
+    camera places). The pass: a far object's :func:`meter_crop`, else the view at
     :func:`meter_size`; a pass in which the objects cover fewer than METER_MIN_COVERED pixels
-    is taken again at twice the size each way, up to half the frame's (a quarter of its
-    pixels), unless the objects' bounding sphere lies wholly outside the view (then the pass's
-    whole frame keys it, as :func:`pointviz.images.auto_exposure` does where no object shows).
-    ``own``: the frame itself, when it is a pass of its own size (a frame of at most
-    METER_PIXELS at full detail and one sample).
+    is taken again at twice the size each way, up to METER_MAX_SCALE times, unless the objects'
+    bounding sphere lies wholly outside the view (then the pass's whole frame keys it, as
+    :func:`pointviz.images.auto_exposure` does where no object shows).
 
     Every frame of a view is exposed alike whatever its level of detail or samples: a coarser
     level of detail changes what the objects' pixels show a little (lod_pixels="auto" bounds
     the mean FLIP against full detail), and metered on its own pixels that change moved the
     exposure, and with it every pixel of the frame (the dragon's raw scans at 7.5x the framing
     distance, E = 0.005: exposure -4.4 %, FLIP against full detail 0.0011 at full detail's
-    exposure, 0.063 at its own). The pass costs METER_PIXELS camera samples or fewer (1/256 of a
+    exposure, 0.063 at its own). The pass costs about METER_PIXELS camera samples (1/256 of a
     640x480 frame's pixels; 0.6-2.5 ms on the dragon's raw scans, one thread); its mean
     luminance over the objects' pixels is unbiased by sampling, so it keys the frame as its own
     pixels would, within the sampling error of that mean (within 6 % of the full-detail frame's
@@ -500,16 +491,16 @@ def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled, own=
     if not look.auto_exposure:  # (render() asks only for looks that have one)
         return 1.0
     key = (bool(opts.shadows), opts.reflections, opts.seed, METER_PIXELS, METER_CROP,
-           METER_MIN_COVERED)
+           METER_MIN_COVERED, METER_MAX_SCALE)
     known = metered.get(key)
     if known is not None:  # this view's, metered by an earlier frame
         return known
-    exposure = _meter(rs, origin, bounds, camera, opts, is_cancelled, own)
+    exposure = _meter(rs, origin, bounds, camera, opts, is_cancelled)
     metered[key] = exposure
     return exposure
 
 
-def _meter(rs, origin, bounds, camera, opts, is_cancelled, own) -> float:
+def _meter(rs, origin, bounds, camera, opts, is_cancelled) -> float:
     """:func:`_metered_exposure`'s passes, on the frame's full-detail RenderScene ``rs``."""
     from .images import EXPOSURE_COVERAGE, auto_exposure
 
@@ -541,15 +532,14 @@ def _meter(rs, origin, bounds, camera, opts, is_cancelled, own) -> float:
             return exposure
     place = _sphere_in_view(camera, bounds)
     in_view = place is None or place[0] != "outside"
-    s = meter_divisor(camera.width, camera.height)
+    scale = 1
     while True:
-        if s == 1 and own is not None:
-            return auto_exposure(own.color, own.object_alpha)
-        exposure, covered = meter(camera.with_size(*meter_size(camera.width, camera.height, s)))
-        # larger passes only while the objects may show, and never the frame's own size
-        if covered >= METER_MIN_COVERED or not in_view or s <= 2:
+        exposure, covered = meter(camera.with_size(*meter_size(camera.width, camera.height,
+                                                               scale)))
+        # larger passes only while the objects may show
+        if covered >= METER_MIN_COVERED or not in_view or scale >= METER_MAX_SCALE:
             return exposure
-        s //= 2
+        scale *= 2
 
 
 #: Where _core_scene keeps its answers: on the Scene (its memo) or on the SurfelScene a frame was

@@ -107,7 +107,8 @@ def test_live_frames_match_direct_renders():
         np.testing.assert_allclose(still.frame.color, whole.color, rtol=ACCUMULATION_RTOL,
                                    atol=1e-5)
         np.testing.assert_allclose(still.frame.alpha, whole.alpha, atol=1e-5)
-        assert still.frame.exposure == whole.exposure  # metered alike, whatever the samples
+        # metered alike whatever the samples, and at the moving frames' reduced size too
+        assert still.frame.exposure == whole.exposure == moving.frame.exposure
     finally:
         assert lr.shutdown()
     assert errors.empty()
