@@ -472,18 +472,19 @@ def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled) -> f
     bounding sphere lies wholly outside the view (then the pass's whole frame keys it, as
     :func:`pointviz.images.auto_exposure` does where no object shows).
 
-    Every frame of a view is exposed alike whatever its level of detail or samples: a coarser
-    level of detail changes what the objects' pixels show a little (lod_pixels="auto" bounds
-    the mean FLIP against full detail), and metered on its own pixels that change moved the
-    exposure, and with it every pixel of the frame (the dragon's raw scans at 7.5x the framing
-    distance, E = 0.005: exposure -4.4 %, FLIP against full detail 0.0011 at full detail's
-    exposure, 0.063 at its own). The pass costs about METER_PIXELS camera samples (1/256 of a
-    640x480 frame's pixels; 0.6-2.5 ms on the dragon's raw scans, one thread); its mean
-    luminance over the objects' pixels is unbiased by sampling, so it keys the frame as its own
-    pixels would, within the sampling error of that mean (within 6 % of the full-detail frame's
-    own on the dragon's scans and the Armadillo from the framing distance to 15x it). What a view meters is kept with its full-detail RenderScene (the memo
-    of :func:`_core_scene`), so that the frames of one view (the viewer's passes, a
-    benchmark's variants) meter it once.
+    Every frame of a view is exposed alike whatever its level of detail, samples or
+    resolution: a coarser level of detail changes what the objects' pixels show a little
+    (lod_pixels="auto" bounds the mean FLIP against full detail), and metered on its own pixels
+    that change moved the exposure, and with it every pixel of the frame (the dragon's raw scans
+    at 7.5x the framing distance, E = 0.005: exposure -4.4 %, FLIP against full detail 0.0011 at
+    full detail's exposure, 0.063 at its own). The pass costs about METER_PIXELS camera samples
+    (1/256 of a 640x480 frame's pixels; 0.6-2.5 ms on the dragon's raw scans, one thread); its
+    mean luminance over the objects' pixels is unbiased by sampling, so it keys the frame as its
+    own pixels would, within the sampling error of that mean (within 6 % of the full-detail
+    frame's own on the dragon's scans and the Armadillo from the framing distance to 15x it).
+    What a view meters is kept with its full-detail RenderScene (the memo of
+    :func:`_core_scene`), so that the frames of one view (the viewer's passes, a benchmark's
+    variants) meter it once.
     """
     # the frame's RenderScene at full detail: its lights are placed for the frame's camera
     rs, origin, _, look, bounds, metered = _core_scene(scene_or_cloud, kw, camera, 0.0, None,
