@@ -404,7 +404,11 @@ def metered_exposure(scene_or_cloud, camera, *, shadows: bool = DEFAULTS.shadows
     """The automatic exposure :func:`render` gives a frame of ``camera`` (1 for a look without
     one), metered as it meters it (:func:`_metered_exposure`: a small full-detail pass of the
     view), without rendering the frame. The frame's level of detail, samples, denoiser and
-    exposure do not enter (``ignored``: a frame's other settings may be passed as they are)."""
+    exposure do not enter (``ignored``: a frame's other settings, RenderSettings names, may be
+    passed as they are)."""
+    unknown = sorted(set(ignored) - set(RenderSettings.names()))
+    if unknown:
+        raise TypeError(f"metered_exposure() got unexpected keyword arguments: {unknown}")
     if camera is None or not hasattr(camera, "pixel_angle"):
         raise InputError("camera: expected a pointviz.Camera")
     opts = RenderSettings(shadows=shadows, reflections=reflections, seed=seed, threads=threads,
@@ -447,9 +451,13 @@ def meter_crop(camera, bounds):
     METER_CROP pixels a side. Only where that sphere lies wholly inside the frame's view (so the
     crop sees no part of an object the frame does not) and the crop magnifies it: where the
     frame's metering pass (:func:`meter_size`) would see it less than METER_CROP pixels wide."""
+    return _crop_of(camera, _sphere_in_view(camera, bounds))
+
+
+def _crop_of(camera, place):
+    """:func:`meter_crop` for the sphere's ``place`` (:func:`_sphere_in_view`)."""
     from .camera import Camera
 
-    place = _sphere_in_view(camera, bounds)
     if place is None or place[0] != "inside":
         return None
     _, centre, radius, dist = place
@@ -491,8 +499,7 @@ def _metered_exposure(scene_or_cloud, kw: dict, camera, opts, is_cancelled) -> f
                                                        opts.sides)
     if not look.auto_exposure:  # (render() asks only for looks that have one)
         return 1.0
-    key = (bool(opts.shadows), opts.reflections, opts.seed, METER_PIXELS, METER_CROP,
-           METER_MIN_COVERED, METER_MAX_SCALE)
+    key = (bool(opts.shadows), opts.reflections, opts.seed)
     known = metered.get(key)
     if known is not None:  # this view's, metered by an earlier frame
         return known
@@ -526,12 +533,12 @@ def _meter(rs, origin, bounds, camera, opts, is_cancelled) -> float:
         covered = int(np.count_nonzero(bufs["object_alpha"] >= EXPOSURE_COVERAGE))
         return auto_exposure(bufs["color"], bufs["object_alpha"]), covered
 
-    crop = meter_crop(camera, bounds)
+    place = _sphere_in_view(camera, bounds)
+    crop = _crop_of(camera, place)
     if crop is not None:
         exposure, covered = meter(crop)
         if covered >= METER_MIN_COVERED:
             return exposure
-    place = _sphere_in_view(camera, bounds)
     in_view = place is None or place[0] != "outside"
     scale = 1
     while True:

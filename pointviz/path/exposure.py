@@ -45,8 +45,7 @@ def path_exposure(scene: Any, cameras: list[dict], render_kwargs: dict, cancel: 
     from ..settings import RenderSettings
 
     # the settings in full (validated; what metering reads of them)
-    kw = RenderSettings.from_kwargs(render_kwargs, "render_path").replace(exposure=None)
-    kw = kw.render_kwargs()
+    kw = RenderSettings.from_kwargs(render_kwargs, "render_path").render_kwargs()
     logs = [math.log(rendering.metered_exposure(scene, cam, cancel=cancel, **kw))
             for cam in meter_cameras(cameras)]
     return math.exp(math.fsum(logs) / len(logs))
